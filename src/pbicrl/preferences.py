@@ -1,0 +1,266 @@
+"""Preferences between trajectories, built from ranked groups, sampled pairs or explicit comparisons.
+
+The likelihood sums :math:`\\log P(\\tau_i \\succ \\tau_j)` over a set of ordered pairs, each with a margin
+:math:`m_{k\\ell}` that is subtracted from the preferred side (paper Eq. 7).  Two storage forms:
+
+* **blocks** - every pair :math:`(\\tau_i \\in \\mathcal{G}_k, \\tau_j \\in \\mathcal{G}_\\ell)`, :math:`k < \\ell`,
+  stored as one dense rows x cols block per group pair (the paper's equation; the fast kernel exploits it);
+* **pairs** - an explicit list ``(i, j, m)`` meaning :math:`\\tau_i \\succ \\tau_j` with margin ``m``
+  (the authors' sampled protocol: ``n`` random pairs per group pair; or user comparisons).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["Margins", "Preferences", "PreferenceError"]
+
+
+class PreferenceError(ValueError):
+    """Invalid preference or margin specification."""
+
+
+@dataclass(frozen=True, eq=False)
+class Margins:
+    """Margins :math:`m_{k\\ell}` between ranked groups.
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (K, K)
+        Upper-triangular: ``matrix[k, l]`` (``k < l``, 0-based ranks) is the margin subtracted from the
+        preferred side of every pair with the better trajectory in the ``k``-th group and the worse in the
+        ``l``-th. Entries on and below the diagonal are ignored (stored as 0).
+    """
+
+    matrix: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.matrix, dtype=np.float64)
+        if m.ndim != 2 or m.shape[0] != m.shape[1] or m.shape[0] < 2:
+            raise PreferenceError(f"margins: expected a K x K matrix with K >= 2, got shape {m.shape}")
+        if not np.all(np.isfinite(m)):
+            raise PreferenceError("margins: contains NaN or inf")
+        lower = np.tril(m, 0)
+        if np.any(lower != 0):
+            raise PreferenceError("margins: only the upper triangle (k < l) may be non-zero; "
+                                  "m_kl is the margin of group k over a worse group l")
+        object.__setattr__(self, "matrix", np.triu(m, 1))
+
+    @property
+    def n_groups(self) -> int:
+        return int(self.matrix.shape[0])
+
+    @classmethod
+    def zeros(cls, n_groups: int) -> "Margins":
+        """All margins zero: the plain Bradley-Terry model."""
+        return cls(np.zeros((n_groups, n_groups)))
+
+    @classmethod
+    def from_gaps(cls, gaps: Sequence[float]) -> "Margins":
+        """Margins from consecutive gaps ``g_k`` between groups ``k`` and ``k+1``: :math:`m_{k\\ell}=\\sum_{k\\le r<\\ell} g_r`."""
+        g = np.asarray(gaps, dtype=np.float64).reshape(-1)
+        if g.size < 1:
+            raise PreferenceError("margins: need at least one gap (K-1 gaps for K groups)")
+        K = g.size + 1
+        cum = np.concatenate([[0.0], np.cumsum(g)])
+        return cls(np.triu(cum[None, :] - cum[:, None], 1).reshape(K, K))
+
+    @classmethod
+    def from_dict(cls, values: dict[tuple[int, int], float], n_groups: int) -> "Margins":
+        """From ``{(k, l): m_kl}`` with 1-based group ranks, ``k < l``."""
+        m = np.zeros((n_groups, n_groups))
+        for (k, l), v in values.items():
+            if not (1 <= k < l <= n_groups):
+                raise PreferenceError(f"margins: pair ({k}, {l}) must satisfy 1 <= k < l <= {n_groups}")
+            m[k - 1, l - 1] = float(v)
+        return cls(m)
+
+    @classmethod
+    def parse(cls, value: "Margins | ArrayLike | None", n_groups: int) -> "Margins":
+        """Accept ``None`` (zeros), a ``Margins``, a K x K matrix, or K-1 consecutive gaps."""
+        if value is None:
+            return cls.zeros(n_groups)
+        if isinstance(value, Margins):
+            out = value
+        else:
+            try:
+                arr = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise PreferenceError("margins: must be numbers (K-1 gaps or a K x K matrix)") from None
+            if arr.ndim == 0:
+                arr = arr.reshape(1)
+            if arr.ndim == 1:
+                if arr.size != n_groups - 1:
+                    raise PreferenceError(f"margins: {n_groups} groups need {n_groups - 1} consecutive gaps, got {arr.size}")
+                out = cls.from_gaps(arr)
+            else:
+                out = cls(arr)
+        if out.n_groups != n_groups:
+            raise PreferenceError(f"margins: matrix is {out.n_groups} x {out.n_groups} but the data have {n_groups} groups")
+        return out
+
+    def as_dict(self) -> dict[str, float]:
+        """``{"m12": ..., "m13": ...}`` with 1-based ranks."""
+        K = self.n_groups
+        return {f"m{k + 1}{l + 1}" if K < 10 else f"m{k + 1}_{l + 1}": float(self.matrix[k, l])
+                for k in range(K) for l in range(k + 1, K)}
+
+
+@dataclass(frozen=True, eq=False)
+class Preferences:
+    """A set of ordered preferences with margins over ``N`` trajectories.
+
+    Parameters
+    ----------
+    n_trajectories : int
+        ``N``; indices refer to trajectories ``0..N-1`` of a dataset.
+    block_rows, block_row_offsets : ndarray, (R,), (B+1,)
+        Preferred-side trajectory indices of each dense block ``b`` are
+        ``block_rows[block_row_offsets[b]:block_row_offsets[b+1]]``.
+    block_cols, block_col_offsets : ndarray, (C,), (B+1,)
+        Dispreferred-side indices, likewise.
+    block_margins : ndarray, (B,)
+        Margin of each block.
+    pair_i, pair_j : ndarray, (P,)
+        Explicit pairs :math:`\\tau_{i_p} \\succ \\tau_{j_p}`.
+    pair_margins : ndarray, (P,)
+        Margin of each explicit pair.
+    protocol : str
+        How the preferences were built (for reports).
+    """
+
+    n_trajectories: int
+    block_rows: NDArray[np.int64]
+    block_row_offsets: NDArray[np.int64]
+    block_cols: NDArray[np.int64]
+    block_col_offsets: NDArray[np.int64]
+    block_margins: NDArray[np.float64]
+    pair_i: NDArray[np.int64]
+    pair_j: NDArray[np.int64]
+    pair_margins: NDArray[np.float64]
+    protocol: str = "custom"
+
+    def __post_init__(self) -> None:
+        N = int(self.n_trajectories)
+        for name in ("block_rows", "block_row_offsets", "block_cols", "block_col_offsets", "pair_i", "pair_j"):
+            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.int64))
+        for name in ("block_margins", "pair_margins"):
+            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
+        B = self.block_margins.size
+        if self.block_row_offsets.size != B + 1 or self.block_col_offsets.size != B + 1:
+            raise PreferenceError("preferences: block offsets must have one more entry than block margins")
+        if self.pair_i.shape != self.pair_j.shape or self.pair_i.shape != self.pair_margins.shape:
+            raise PreferenceError("preferences: pair_i, pair_j and pair_margins must have the same length")
+        for name in ("block_rows", "block_cols", "pair_i", "pair_j"):
+            idx = getattr(self, name)
+            if idx.size and (idx.min() < 0 or idx.max() >= N):
+                raise PreferenceError(f"preferences: {name} has an index outside [0, {N})")
+        if np.any(self.pair_i == self.pair_j):
+            raise PreferenceError("preferences: a trajectory cannot be preferred to itself")
+        if self.n_pairs == 0:
+            raise PreferenceError("preferences: no pairs; need at least two ranked groups or one comparison")
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_groups(
+        cls,
+        group: ArrayLike,
+        margins: Margins | ArrayLike | None = None,
+        *,
+        protocol: Literal["all"] | int = "all",
+        seed: int | np.random.Generator | None = 0,
+    ) -> "Preferences":
+        """Preferences implied by a ranking of groups.
+
+        Parameters
+        ----------
+        group : array-like, (N,)
+            Group label per trajectory; lower label = more preferred.
+        margins : Margins, K x K matrix or K-1 gaps, optional
+            Margins :math:`m_{k\\ell}`; zeros by default.
+        protocol : "all" or int
+            ``"all"``: every cross-group pair (paper Eq. 7). An integer ``n``: ``n`` pairs drawn uniformly
+            at random (with replacement) for every group pair ``k < l`` (the authors' experiments).
+        seed : int or Generator
+            For the sampled protocol.
+        """
+        g = np.asarray(group)
+        if g.ndim != 1 or g.size < 2:
+            raise PreferenceError("group: need a 1-D array of at least two labels")
+        labels = np.unique(g)
+        if labels.size < 2:
+            raise PreferenceError("group: need at least two non-empty groups")
+        K = labels.size
+        m = Margins.parse(margins, K)
+        members = [np.flatnonzero(g == lab) for lab in labels]
+        empty = np.zeros(0, dtype=np.int64)
+        if protocol == "all":
+            rows, cols, roff, coff, bm = [], [], [0], [0], []
+            for k in range(K):
+                for l in range(k + 1, K):
+                    rows.append(members[k]); cols.append(members[l])
+                    roff.append(roff[-1] + members[k].size); coff.append(coff[-1] + members[l].size)
+                    bm.append(m.matrix[k, l])
+            return cls(g.size, np.concatenate(rows), np.array(roff), np.concatenate(cols), np.array(coff),
+                       np.array(bm), empty, empty, np.zeros(0), protocol="all")
+        if isinstance(protocol, (bool, np.bool_)) or not isinstance(protocol, (int, np.integer)) or protocol < 1:
+            raise PreferenceError(f"protocol: expected 'all' or a positive number of pairs per group pair, got {protocol!r}")
+        rng = np.random.default_rng(seed)
+        pi, pj, pm = [], [], []
+        for k in range(K):
+            for l in range(k + 1, K):
+                pi.append(rng.choice(members[k], size=int(protocol)))
+                pj.append(rng.choice(members[l], size=int(protocol)))
+                pm.append(np.full(int(protocol), m.matrix[k, l]))
+        return cls(g.size, empty, np.zeros(1, dtype=np.int64), empty, np.zeros(1, dtype=np.int64), np.zeros(0),
+                   np.concatenate(pi), np.concatenate(pj), np.concatenate(pm), protocol=f"{int(protocol)} per group pair")
+
+    @classmethod
+    def from_pairs(cls, pairs: ArrayLike, n_trajectories: int, margins: ArrayLike | float = 0.0) -> "Preferences":
+        """Explicit comparisons: row ``(i, j)`` of ``pairs`` means trajectory ``i`` is preferred to ``j``."""
+        p = np.asarray(pairs)
+        if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] == 0:
+            raise PreferenceError(f"pairs: expected shape (P, 2) with P >= 1, got {p.shape}")
+        if not np.issubdtype(p.dtype, np.integer):
+            raise PreferenceError("pairs: trajectory indices must be integers")
+        m = np.broadcast_to(np.asarray(margins, dtype=np.float64), (p.shape[0],)).copy()
+        empty = np.zeros(0, dtype=np.int64)
+        return cls(int(n_trajectories), empty, np.zeros(1, dtype=np.int64), empty, np.zeros(1, dtype=np.int64),
+                   np.zeros(0), p[:, 0], p[:, 1], m, protocol="pairs")
+
+    # ------------------------------------------------------------------ views
+    @property
+    def n_blocks(self) -> int:
+        return int(self.block_margins.size)
+
+    @property
+    def n_pairs(self) -> int:
+        """Total number of ordered pairs (dense blocks plus explicit pairs)."""
+        nr = np.diff(self.block_row_offsets)
+        nc = np.diff(self.block_col_offsets)
+        return int(np.sum(nr * nc) + self.pair_i.size)
+
+    def to_pair_list(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+        """Every pair as ``(i, j, m)`` arrays (expands the blocks; for checks and small problems)."""
+        I, J, M = [self.pair_i], [self.pair_j], [self.pair_margins]
+        for b in range(self.n_blocks):
+            r = self.block_rows[self.block_row_offsets[b]:self.block_row_offsets[b + 1]]
+            c = self.block_cols[self.block_col_offsets[b]:self.block_col_offsets[b + 1]]
+            I.append(np.repeat(r, c.size)); J.append(np.tile(c, r.size)); M.append(np.full(r.size * c.size, self.block_margins[b]))
+        return np.concatenate(I), np.concatenate(J), np.concatenate(M)
+
+    def with_margins(self, group: ArrayLike, margins: Margins | ArrayLike) -> "Preferences":
+        """Same pairs, margins replaced by those of ``margins`` (looked up from the groups of each pair)."""
+        g = np.asarray(group)
+        labels = np.unique(g)
+        m = Margins.parse(margins, labels.size)
+        rank = np.searchsorted(labels, g)
+        bm = np.array([m.matrix[rank[self.block_rows[self.block_row_offsets[b]]],
+                                rank[self.block_cols[self.block_col_offsets[b]]]] for b in range(self.n_blocks)])
+        pm = m.matrix[rank[self.pair_i], rank[self.pair_j]] if self.pair_i.size else np.zeros(0)
+        return Preferences(self.n_trajectories, self.block_rows, self.block_row_offsets, self.block_cols,
+                           self.block_col_offsets, bm, self.pair_i, self.pair_j, pm, protocol=self.protocol)

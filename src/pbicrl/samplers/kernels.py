@@ -1,0 +1,305 @@
+"""Sampler kernels as pure ``init(rng) -> State`` and ``step(rng, state) -> (State, Info)`` functions.
+
+Three methods share one compiled loop (:mod:`pbicrl.samplers._mcmc`):
+
+``"pbicrl"`` (default) - a valid reversible-jump Metropolis-Hastings sampler for the model
+    :math:`c_j \\sim \\mathrm{Bernoulli}(\\pi)`, :math:`w_{p,j} \\mid c_j{=}1 \\sim p(w)`,
+    likelihood paper Eq. 7. A switched-off feature has *no* penalty weight (its weight does not exist,
+    stored as 0), so no stale weight is ever proposed. Moves, each chosen with a fixed probability:
+
+    * **flip-and-draw** (probability ``p_flip``, feature :math:`j` uniform): switching :math:`j` on draws
+      :math:`w_j \\sim q_j = \\mathcal{N}(\\mu_j, s_j^2)` and is accepted with
+      :math:`\\min\\{1, \\frac{L(c', w')\\,\\pi\\,p(w_j)}{L(c, w)\\,(1-\\pi)\\,q_j(w_j)}\\}`; switching off is the
+      reverse move, accepted with the reciprocal ratio evaluated at the current :math:`w_j`. The
+      proposal :math:`q_j` does not depend on :math:`w_j`, so the pair of moves is reversible (Green 1995,
+      a dimension-matching jump with unit Jacobian).
+    * **weight step** (otherwise): a Gaussian random walk on one active weight chosen uniformly among the
+      active ones (the identity if none is active), accepted with the usual ratio including the prior.
+
+    During warm-up (``burn_in``) the random-walk scales adapt towards 30% acceptance and each :math:`q_j`
+    is fitted to the active draws of :math:`w_j` (mean, twice the standard deviation), so switching a
+    constraint on proposes weights where its posterior lies. Adaptation stops at the end of warm-up; the
+    kept draws come from a fixed, valid kernel.
+
+``"paper"`` - Algorithm 1 verbatim: iteration :math:`i` flips :math:`c_j` keeping the latent weight when
+    :math:`i \\bmod f_s \\ne 0`, else steps :math:`w_j` by :math:`\\mathcal{N}(0, \\sigma)`; acceptance by the
+    likelihood ratio alone (flat improper prior). Kept for exact reproduction; as a sampler it mixes
+    poorly (a feature switched back on proposes its stale latent weight).
+
+``"bpl"`` - Algorithm 3: every feature active, random walk on :math:`w_p` (optionally with a prior).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Literal, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pbicrl.likelihood import PreferenceLikelihood
+from pbicrl.priors import IndicatorPrior, PriorError, WeightPrior
+from pbicrl.samplers import _mcmc
+
+__all__ = ["SamplerSettings", "ChainState", "StepInfo", "Kernel", "build_kernel", "METHODS"]
+
+METHODS = ("pbicrl", "paper", "bpl")
+_MODE = {"pbicrl": _mcmc.MODE_PBICRL, "paper": _mcmc.MODE_PAPER, "bpl": _mcmc.MODE_BPL}
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """Settings of a sampler (bound into a :class:`Kernel` by :func:`build_kernel`).
+
+    Parameters
+    ----------
+    method : {"pbicrl", "paper", "bpl"}
+        See module docstring.
+    n_iterations : int
+        Metropolis-Hastings iterations per chain (paper: 400,000).
+    burn_in : int or None
+        Warm-up iterations, not kept (adaptation happens here). Default: a quarter of ``n_iterations``.
+    thin : int or None
+        Keep every ``thin``-th draw after warm-up. Default: at most 10,000 draws per chain.
+    sigma : float
+        Random-walk standard deviation :math:`\\sigma` (initial value when adapting). Paper: 0.1.
+    f_s : int
+        Paper mode: sampling frequency :math:`f_s` (weight step when :math:`i \\bmod f_s = 0`). Paper: 4.
+    p_flip : float
+        PBICRL mode: probability of a flip-and-draw move per iteration.
+    adapt : bool or None
+        Adapt step sizes and flip proposals during warm-up. Default: on for ``pbicrl``, off otherwise
+        (the paper's algorithms use a fixed :math:`\\sigma`).
+    init_scale : float
+        Initial weights are drawn :math:`\\mathcal{N}(0, \\text{init\\_scale}^2)` (clipped to the prior bounds);
+        initial indicators Bernoulli(1/2), as the paper's random initialisation.
+    weight_prior, indicator_prior
+        Priors (see :mod:`pbicrl.priors`). The paper mode ignores them (flat improper).
+    candidates : sequence of int or None
+        Features that may be constraints (default: all). Others keep :math:`c_j = 0`.
+    """
+
+    method: Literal["pbicrl", "paper", "bpl"] = "pbicrl"
+    n_iterations: int = 400_000
+    burn_in: int | None = None
+    thin: int | None = None
+    sigma: float = 0.1
+    f_s: int = 4
+    p_flip: float = 0.5
+    adapt: bool | None = None
+    init_scale: float = 1.0
+    weight_prior: WeightPrior = field(default_factory=WeightPrior)
+    indicator_prior: IndicatorPrior = field(default_factory=IndicatorPrior)
+    candidates: tuple[int, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method: unknown sampler {self.method!r}; choose one of {', '.join(METHODS)}")
+        if int(self.n_iterations) < 1:
+            raise ValueError(f"iterations: must be >= 1, got {self.n_iterations}")
+        if self.burn_in is not None and not (0 <= int(self.burn_in) < int(self.n_iterations)):
+            raise ValueError(f"burn_in: must lie in [0, iterations), got {self.burn_in} for {self.n_iterations} iterations")
+        if self.thin is not None and int(self.thin) < 1:
+            raise ValueError(f"thin: must be >= 1, got {self.thin}")
+        if not (np.isfinite(self.sigma) and self.sigma > 0):
+            raise ValueError(f"sigma: the random-walk step must be positive, got {self.sigma}")
+        if int(self.f_s) < 1:
+            raise ValueError(f"f_s: the sampling frequency must be >= 1, got {self.f_s}")
+        if not (0.0 < self.p_flip < 1.0):
+            raise ValueError(f"p_flip: must lie strictly between 0 and 1, got {self.p_flip}")
+        if not (np.isfinite(self.init_scale) and self.init_scale > 0):
+            raise ValueError(f"init_scale: must be positive, got {self.init_scale}")
+        if self.method == "pbicrl" and self.weight_prior.kind == "improper":
+            raise PriorError("weight prior: the pbicrl sampler needs a proper prior on w_p (P(c=1) is undefined "
+                             "otherwise); use 'flat' with bounds, or method='paper'")
+        if self.candidates is not None:
+            object.__setattr__(self, "candidates", tuple(int(j) for j in self.candidates))
+
+    @property
+    def burn_in_(self) -> int:
+        return int(self.n_iterations) // 4 if self.burn_in is None else int(self.burn_in)
+
+    @property
+    def thin_(self) -> int:
+        if self.thin is not None:
+            return int(self.thin)
+        kept = int(self.n_iterations) - self.burn_in_
+        return max(1, -(-kept // 10_000))
+
+    @property
+    def n_draws(self) -> int:
+        kept = int(self.n_iterations) - self.burn_in_
+        return -(-kept // self.thin_)
+
+    @property
+    def adapt_(self) -> bool:
+        return self.method == "pbicrl" if self.adapt is None else bool(self.adapt)
+
+    def to_dict(self) -> dict:
+        return {"method": self.method, "iterations": int(self.n_iterations), "burn_in": self.burn_in_,
+                "thin": self.thin_, "sigma": self.sigma, "f_s": self.f_s, "p_flip": self.p_flip,
+                "adapt": self.adapt_, "init_scale": self.init_scale, "weight_prior": self.weight_prior.to_dict(),
+                "indicator_prior": {"pi": self.indicator_prior.pi},
+                "candidates": None if self.candidates is None else list(self.candidates)}
+
+
+class ChainState(NamedTuple):
+    """State of one chain.
+
+    Attributes
+    ----------
+    indicators : ndarray (d,) int8
+        :math:`c`.
+    penalty_weights : ndarray (d,)
+        :math:`w_p` (0 for inactive features in ``pbicrl`` mode; latent in ``paper`` mode).
+    scaled_returns : ndarray (N,)
+        :math:`a = \\beta \\bar\\Phi (w_n + c \\circ w_p)`.
+    log_likelihood, log_prior : float
+    iteration : int
+        Iterations done.
+    sigma, q_mean, q_scale : ndarray (d,)
+        Random-walk scales and flip-and-draw proposals (adapted during warm-up).
+    adapt_stats : ndarray (5, d)
+        Warm-up accumulators.
+    map_indicators, map_penalty_weights : ndarray (d,)
+        Best state visited (highest log-posterior).
+    map_log_posterior, map_log_likelihood : float
+    counts : ndarray (5,) int64
+        Flip proposals, flip accepts, weight proposals, weight accepts, likelihood evaluations.
+    """
+
+    indicators: NDArray[np.int8]
+    penalty_weights: NDArray[np.float64]
+    scaled_returns: NDArray[np.float64]
+    log_likelihood: float
+    log_prior: float
+    iteration: int
+    sigma: NDArray[np.float64]
+    q_mean: NDArray[np.float64]
+    q_scale: NDArray[np.float64]
+    adapt_stats: NDArray[np.float64]
+    map_indicators: NDArray[np.int8]
+    map_penalty_weights: NDArray[np.float64]
+    map_log_posterior: float
+    map_log_likelihood: float
+    counts: NDArray[np.int64]
+
+
+class StepInfo(NamedTuple):
+    """What one step did."""
+
+    move: str  # "flip", "weight" or "none"
+    accepted: bool
+    log_likelihood: float
+
+
+@dataclass(frozen=True, eq=False)
+class Kernel:
+    """A sampler with its settings bound: ``init``, ``step`` and the compiled ``run``."""
+
+    likelihood: PreferenceLikelihood
+    settings: SamplerSettings
+
+    @property
+    def _cand(self) -> NDArray[np.int64]:
+        d = self.likelihood.n_features
+        cand = np.arange(d) if self.settings.candidates is None else np.asarray(self.settings.candidates, dtype=np.int64)
+        if cand.size == 0 or cand.min() < 0 or cand.max() >= d or np.unique(cand).size != cand.size:
+            raise ValueError(f"candidates: expected distinct feature indices in [0, {d}), got {cand.tolist()}")
+        return cand
+
+    def _prior_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        prior = WeightPrior("improper") if self.settings.method == "paper" else self.settings.weight_prior
+        return prior.as_arrays(self.likelihood.n_features)
+
+    def _log_prior(self, c: NDArray, w: NDArray) -> float:
+        s = self.settings
+        if s.method == "paper":
+            return 0.0
+        lpw = s.weight_prior.logpdf(w)
+        if s.method == "bpl":
+            return float(np.sum(lpw))
+        on = c.astype(bool)
+        return float(np.sum(lpw[on]) + on.sum() * s.indicator_prior.log_odds)
+
+    def init(self, rng: np.random.Generator | int | None = None) -> ChainState:
+        """Random initial state (paper: "randomly sample penalty weight and constraint features")."""
+        rng = np.random.default_rng(rng)
+        s = self.settings
+        lik = self.likelihood
+        d = lik.n_features
+        cand = self._cand
+        c = np.zeros(d, dtype=np.int8)
+        w = np.zeros(d)
+        if s.method == "bpl":
+            c[:] = 1
+        else:
+            c[cand] = rng.integers(0, 2, cand.size).astype(np.int8)
+        w_draw = rng.normal(0.0, s.init_scale, d)
+        if s.method != "paper":
+            w_draw = np.clip(w_draw, s.weight_prior.low, s.weight_prior.high)
+        if s.method == "pbicrl":
+            w = np.where(c == 1, w_draw, 0.0)
+        else:
+            w = w_draw
+        a = lik.beta * lik.mean_features @ (lik.nominal_weights + c * w)
+        ll = lik.from_scaled_returns(a)
+        lp = self._log_prior(c, w)
+        sigma = np.full(d, float(s.sigma))
+        q_scale = np.full(d, max(10.0 * s.sigma, 2.0 * s.init_scale) if s.weight_prior.kind == "improper"
+                          else max(10.0 * s.sigma, (s.weight_prior.high - s.weight_prior.low) / 20.0))
+        return ChainState(c, w, a, ll, lp, 0, sigma, np.zeros(d), q_scale, np.zeros((5, d)),
+                          c.copy(), w.copy(), ll + lp, ll, np.zeros(5, dtype=np.int64))
+
+    def draw_randoms(self, rng: np.random.Generator, n: int) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        """The per-iteration random numbers: feature choice, move choice, normal, acceptance uniform."""
+        return rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n)
+
+    def run(self, rng: np.random.Generator, state: ChainState, n: int,
+            out: tuple[NDArray, NDArray, NDArray, NDArray, NDArray] | None = None) -> ChainState:
+        """Advance ``n`` iterations in compiled code. ``out`` = (c, w, ll, lp, n_out) draw buffers, filled in place."""
+        s = self.settings
+        lik = self.likelihood
+        d = lik.n_features
+        st = _copy_state(state)
+        if out is None:
+            out = (np.zeros((0, d), np.int8), np.zeros((0, d)), np.zeros(0), np.zeros(0), np.zeros(1, np.int64))
+        u_j, u_mv, z, u_acc = self.draw_randoms(rng, n)
+        pkind, prm = self._prior_arrays()
+        scal = np.array([st.log_likelihood, st.log_prior])
+        map_scal = np.array([st.map_log_posterior, st.map_log_likelihood])
+        ad = st.adapt_stats
+        ad_n, ad_sum, ad_sq, ad_prop, ad_acc = ad[0], ad[1], ad[2], ad[3], ad[4]
+        _mcmc.run_chunk(
+            _MODE[s.method], n, st.iteration, s.burn_in_, s.thin_, 500 if s.adapt_ else 0,
+            st.indicators, st.penalty_weights, st.scaled_returns, scal, lik.scaled_features_T, *lik.kernel_args(),
+            u_j, u_mv, z, u_acc, self._cand, s.p_flip, int(s.f_s), s.indicator_prior.log_odds, pkind, prm,
+            st.sigma, st.q_mean, st.q_scale, ad_n, ad_sum, ad_sq, ad_prop, ad_acc,
+            out[0], out[1], out[2], out[3], out[4],
+            st.map_indicators, st.map_penalty_weights, map_scal, st.counts,
+            np.empty(lik.mean_features.shape[0]), np.zeros(d, dtype=np.bool_), np.zeros(d))
+        return st._replace(log_likelihood=float(scal[0]), log_prior=float(scal[1]), iteration=st.iteration + n,
+                           map_log_posterior=float(map_scal[0]), map_log_likelihood=float(map_scal[1]))
+
+    def step(self, rng: np.random.Generator, state: ChainState) -> tuple[ChainState, StepInfo]:
+        """One Metropolis-Hastings iteration (pure: ``state`` is not modified)."""
+        new = self.run(rng, state, 1)
+        dc = new.counts - state.counts
+        move = "flip" if dc[0] else ("weight" if dc[2] else "none")
+        return new, StepInfo(move, bool(dc[1] or dc[3]), new.log_likelihood)
+
+
+def _copy_state(s: ChainState) -> ChainState:
+    return ChainState(*(x.copy() if isinstance(x, np.ndarray) else x for x in s))
+
+
+def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | None = None, **overrides) -> Kernel:
+    """Bind settings to a likelihood: ``build_kernel(lik, method="bpl", sigma=0.5)``."""
+    settings = SamplerSettings() if settings is None else settings
+    if overrides:
+        settings = replace(settings, **overrides)
+    kernel = Kernel(likelihood, settings)
+    kernel._cand  # validate candidates now  # noqa: B018
+    return kernel
+
+
