@@ -3,12 +3,28 @@
 Architecture (one module per concept)::
 
     data -> preferences -> likelihood -> samplers -> results
-                 (synthetic problems, envs, demonstrators, experiments and baselines beside it;
-                  the CLI on top)
+    (priors, synthetic problems; envs, demonstrators, experiments and baselines beside it; the CLI on top)
+
+Quick start::
+
+    import pbicrl
+    ds = pbicrl.load_dataset("demos.npz")          # grouped trajectories, group 1 = best
+    post = pbicrl.infer(ds, margins=[0.0, 2.9])     # PBICRL posterior, 4 chains
+    print(post.table())
 """
 
+from pbicrl.api import infer
 from pbicrl.data import Dataset, DatasetError, load_dataset
+from pbicrl.likelihood import PreferenceLikelihood, log_likelihood
+from pbicrl.preferences import Margins, PreferenceError, Preferences
+from pbicrl.priors import IndicatorPrior, PriorError, WeightPrior
+from pbicrl.results import Posterior
+from pbicrl.samplers import SamplerSettings, build_kernel, sample
 
 __version__ = "0.1.0"
 
-__all__ = ["Dataset", "DatasetError", "load_dataset", "__version__"]
+__all__ = [
+    "Dataset", "DatasetError", "load_dataset", "Margins", "Preferences", "PreferenceError",
+    "PreferenceLikelihood", "log_likelihood", "WeightPrior", "IndicatorPrior", "PriorError",
+    "SamplerSettings", "build_kernel", "sample", "Posterior", "infer", "__version__",
+]

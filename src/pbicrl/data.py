@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -333,6 +334,7 @@ class Dataset:
         try:
             with os.fdopen(fd, "wb") as fh:
                 (np.savez_compressed if compress else np.savez)(fh, **arrays)
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -345,6 +347,8 @@ class Dataset:
         path = Path(path)
         if not path.exists():
             raise DatasetError(f"{path}: no such file")
+        if not zipfile.is_zipfile(path):
+            raise DatasetError(f"{path}: not a readable .npz archive (not a zip file)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 content = {k: z[k] for k in z.files}
@@ -373,6 +377,12 @@ class Dataset:
         counts = ", ".join(f"G{k}: {c}" for k, c in self.group_counts().items())
         return (f"Dataset(N={self.n_trajectories}, d={self.n_features}, states={self.lengths.sum()}, "
                 f"groups={{{counts}}}, features={list(self.feature_names)})")
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def load_dataset(path: str | os.PathLike[str]) -> Dataset:

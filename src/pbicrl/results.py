@@ -273,6 +273,8 @@ class Posterior:
 
 
 def _py(x: Any) -> Any:
+    if isinstance(x, (int, np.integer)):
+        return int(x)
     x = float(x) if np.ndim(x) == 0 else x
     if isinstance(x, float) and not np.isfinite(x):
         return None

@@ -1,0 +1,226 @@
+"""Command-line interface: ``pbicrl infer``, ``pbicrl info``, ``pbicrl synthetic`` (+ subcommands of the extras).
+
+User errors (bad data, options or config) end with one line ``pbicrl: error: ...`` and exit status 2
+(set ``PBICRL_DEBUG=1`` for the traceback); output directories are written atomically, so a failed run leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+__all__ = ["main", "build_parser"]
+
+_USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, ImportError)
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(x) for x in text.replace(",", " ").split()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _margins(text: str) -> list:
+    """'0,2.9' (gaps) or '0,0,6;0,0,2.9;0,0,0' (matrix rows separated by ';')."""
+    if ";" in text:
+        return [_floats(row) for row in text.split(";")]
+    return _floats(text)
+
+
+def _pairs(text: str) -> str | int:
+    if text == "all":
+        return "all"
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'all' or a positive integer, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected 'all' or a positive integer, got {text!r}")
+    return n
+
+
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return n
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        n = int(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return n
+
+
+def _positive_float(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not x > 0 or x != x or x == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return x
+
+
+def _add_infer(sub: Any) -> None:
+    p = sub.add_parser("infer", help="infer constraints from a grouped dataset (.npz)",
+                       description="Sample the posterior over constraint indicators and penalty weights.")
+    p.add_argument("data", type=Path, help="dataset .npz (see pbicrl.data), or a name of a shipped dataset")
+    p.add_argument("--out", type=Path, required=True, help="output directory (summary.json, chains.npz)")
+    p.add_argument("--config", type=Path, help="TOML file with the same settings (options below override it)")
+    p.add_argument("--nominal-weights", type=_floats, help="known nominal weights w_n, e.g. '1,0,0,-1'")
+    p.add_argument("--margins", type=_margins, help="K-1 consecutive gaps '0,2.9' or a matrix '0,0,6;0,0,2.9;0,0,0'")
+    p.add_argument("--beta", type=_positive_float, help="inverse temperature (default 1)")
+    p.add_argument("--pairs", type=_pairs, help="'all' cross-group pairs (default) or N random pairs per group pair")
+    p.add_argument("--sampler", choices=["pbicrl", "paper", "bpl"], help="pbicrl (default), paper (Algorithm 1), bpl")
+    p.add_argument("--iterations", type=_positive_int, help="iterations per chain (default 400000)")
+    p.add_argument("--burn-in", type=_nonneg_int, help="warm-up iterations (default: a quarter)")
+    p.add_argument("--thin", type=_positive_int, help="keep every n-th draw (default: <= 10000 draws per chain)")
+    p.add_argument("--chains", type=_positive_int, help="independent chains (default 4)")
+    p.add_argument("--jobs", type=_positive_int, help="worker processes (default: one per core)")
+    p.add_argument("--seed", type=_nonneg_int, help="random seed (default 0)")
+    p.add_argument("--sigma", type=_positive_float, help="random-walk step (default 0.1; adapted for pbicrl)")
+    p.add_argument("--fs", dest="f_s", type=_positive_int, help="paper sampler: sampling frequency f_s (default 4)")
+    p.add_argument("--p-flip", type=float, help="pbicrl sampler: probability of a flip move (default 0.5)")
+    p.add_argument("--prior", choices=["flat", "uniform", "normal"], help="prior on penalty weights (default flat)")
+    p.add_argument("--prior-bounds", type=_floats, help="bounds of the weight prior 'low,high' (default -1000,1000)")
+    p.add_argument("--prior-scale", type=_positive_float, help="normal prior scale (default 100)")
+    p.add_argument("--indicator-pi", type=float, help="Bernoulli prior P(c_j = 1) (default 0.5)")
+    p.add_argument("--candidates", help="comma-separated features that may be constraints (default: all)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print summary.json instead of the table")
+    p.set_defaults(func=_cmd_infer)
+
+
+def _cmd_infer(args: argparse.Namespace) -> int:
+    from pbicrl.api import infer_from_config
+    from pbicrl.config import ConfigError, InferConfig, load_config
+    from pbicrl.data import load_dataset
+
+    cfg = load_config(args.config) if args.config else InferConfig()
+    bounds = args.prior_bounds
+    if bounds is not None and len(bounds) != 2:
+        raise ConfigError(f"--prior-bounds: expected two numbers 'low,high', got {len(bounds)}")
+    cfg = cfg.updated(
+        nominal_weights=args.nominal_weights, margins=args.margins, beta=args.beta, pairs=args.pairs,
+        sampler=args.sampler, iterations=args.iterations, burn_in=args.burn_in, thin=args.thin, chains=args.chains,
+        jobs=args.jobs, seed=args.seed, sigma=args.sigma, f_s=args.f_s, p_flip=args.p_flip, prior=args.prior,
+        prior_low=None if bounds is None else bounds[0], prior_high=None if bounds is None else bounds[1],
+        prior_scale=args.prior_scale, indicator_pi=args.indicator_pi,
+        candidates=None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()])
+    if args.out.exists() and not args.overwrite and (not args.out.is_dir() or any(args.out.iterdir())):
+        raise FileExistsError(f"--out: {args.out} already exists; choose another directory or pass --overwrite")
+    data = _resolve_data(args.data)
+    ds = load_dataset(data)
+    post = infer_from_config(ds, cfg, progress=not args.no_progress)
+    post.extra["data"]["path"] = str(data)
+    post.save(args.out, overwrite=args.overwrite)
+    if args.json:
+        print(json.dumps(post.summary(), indent=2, default=str))
+    else:
+        print(post.table())
+        print(f"wrote {args.out / 'summary.json'} and {args.out / 'chains.npz'}")
+    return 0
+
+
+def _resolve_data(path: Path) -> Path:
+    """A path, or the name of a dataset shipped in ``pbicrl/data`` (e.g. ``point_mass``)."""
+    if path.exists():
+        return path
+    from importlib import resources
+
+    shipped = resources.files("pbicrl") / "data" / (path.name if path.suffix == ".npz" else f"{path.name}.npz")
+    if shipped.is_file():
+        return Path(str(shipped))
+    raise FileNotFoundError(f"data: {path}: no such file (and no shipped dataset of that name)")
+
+
+def _add_info(sub: Any) -> None:
+    p = sub.add_parser("info", help="describe a dataset")
+    p.add_argument("data", type=Path)
+    p.set_defaults(func=_cmd_info)
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from pbicrl.data import load_dataset
+
+    ds = load_dataset(_resolve_data(args.data))
+    print(ds)
+    print(f"lengths: min {ds.lengths.min()}, mean {ds.lengths.mean():.1f}, max {ds.lengths.max()}")
+    print(f"nominal weights: {None if ds.nominal_weights is None else ds.nominal_weights.tolist()}")
+    print(f"states: {None if ds.states is None else ds.states.shape[1]} columns; "
+          f"actions: {None if ds.actions is None else ds.actions.shape[1]} columns")
+    return 0
+
+
+def _add_synthetic(sub: Any) -> None:
+    p = sub.add_parser("synthetic", help="write a synthetic grouped dataset with known constraints")
+    p.add_argument("out", type=Path, help="output .npz")
+    p.add_argument("--per-group", type=_positive_int, default=60)
+    p.add_argument("--seed", type=_nonneg_int, default=0)
+    p.set_defaults(func=_cmd_synthetic)
+
+
+def _cmd_synthetic(args: argparse.Namespace) -> int:
+    from pbicrl.synthetic import make_problem
+
+    prob = make_problem(args.per_group, labels="violations", violation_rate=0.4, seed=args.seed)
+    path = prob.dataset.save(args.out)
+    print(f"wrote {path}: {prob.dataset}; true penalty {prob.true_penalty.tolist()}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from pbicrl import __version__
+
+    parser = argparse.ArgumentParser(prog="pbicrl", description="Bayesian constraint inference from ranked demonstrations")
+    parser.add_argument("--version", action="version", version=f"pbicrl {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_infer(sub)
+    _add_info(sub)
+    _add_synthetic(sub)
+    for mount in _EXTENSIONS:
+        try:
+            module = __import__(mount, fromlist=["add_subcommands"])
+        except ImportError:
+            continue
+        module.add_subcommands(sub)
+    return parser
+
+
+# Subcommands contributed by other subpackages; each module exposes add_subcommands(subparsers) and must not
+# import optional dependencies at module level.
+_EXTENSIONS: tuple[str, ...] = ()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except _USER_ERRORS as exc:
+        if os.environ.get("PBICRL_DEBUG"):
+            raise
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f"pbicrl: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("pbicrl: interrupted; no output written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

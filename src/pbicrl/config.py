@@ -1,0 +1,102 @@
+"""Inference configuration: one validated record built from a TOML file and/or command-line options."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+__all__ = ["InferConfig", "ConfigError", "load_config"]
+
+
+class ConfigError(ValueError):
+    """Invalid configuration; the message names the key."""
+
+
+@dataclass(frozen=True)
+class InferConfig:
+    """Settings of ``pbicrl infer`` (same names in the TOML file, top level or under ``[infer]``).
+
+    Attributes
+    ----------
+    nominal_weights : list of float or None
+        Known :math:`w_n` (default: from the dataset, else zeros).
+    margins : list of float, or list of lists, or None
+        K-1 consecutive gaps or a K x K upper-triangular matrix :math:`m_{k\\ell}`.
+    beta : float
+        Inverse temperature.
+    pairs : "all" or int
+        All cross-group pairs, or that many random pairs per group pair.
+    sampler : "pbicrl" | "paper" | "bpl"
+    iterations, burn_in, thin, chains, seed, jobs : int
+    sigma, f_s, p_flip, init_scale : sampler settings
+    prior, prior_low, prior_high, prior_mean, prior_scale : weight prior
+    indicator_pi : float
+        Bernoulli prior probability of each constraint.
+    candidates : list of str or int, or None
+        Features that may be constraints (names or indices).
+    """
+
+    nominal_weights: list[float] | None = None
+    margins: list | None = None
+    beta: float = 1.0
+    pairs: str | int = "all"
+    pairs_seed: int = 0
+    sampler: str = "pbicrl"
+    iterations: int = 400_000
+    burn_in: int | None = None
+    thin: int | None = None
+    chains: int = 4
+    seed: int = 0
+    jobs: int | None = None
+    sigma: float = 0.1
+    f_s: int = 4
+    p_flip: float = 0.5
+    init_scale: float = 1.0
+    prior: str = "flat"
+    prior_low: float = -1000.0
+    prior_high: float = 1000.0
+    prior_mean: float = 0.0
+    prior_scale: float = 100.0
+    indicator_pi: float = 0.5
+    candidates: list | None = None
+
+    def updated(self, **values: Any) -> "InferConfig":
+        """Copy with the non-``None`` values replaced (command-line options over the file)."""
+        return replace(self, **{k: v for k, v in values.items() if v is not None})
+
+
+_TYPES: dict[str, tuple[type, ...]] = {
+    "beta": (int, float), "sigma": (int, float), "p_flip": (int, float), "init_scale": (int, float),
+    "prior_low": (int, float), "prior_high": (int, float), "prior_mean": (int, float), "prior_scale": (int, float),
+    "indicator_pi": (int, float), "iterations": (int,), "burn_in": (int,), "thin": (int,), "chains": (int,),
+    "seed": (int,), "jobs": (int,), "f_s": (int,), "pairs_seed": (int,), "sampler": (str,), "prior": (str,),
+    "pairs": (str, int), "nominal_weights": (list,), "margins": (list,), "candidates": (list,),
+}
+
+
+def load_config(path: str | Path) -> InferConfig:
+    """Read a TOML config; unknown keys and wrong types are errors that name the key."""
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"--config: {path}: no such file")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"--config: {path} is not valid TOML ({exc})") from None
+    table = raw.get("infer", raw)
+    if not isinstance(table, dict):
+        raise ConfigError("--config: [infer] must be a table")
+    known = {f.name for f in fields(InferConfig)}
+    values = {}
+    for key, value in table.items():
+        if key == "infer" or isinstance(value, dict) and key in ("constraints", "parametric"):
+            continue
+        if key not in known:
+            raise ConfigError(f"config key '{key}': unknown; known keys are {', '.join(sorted(known))}")
+        types = _TYPES.get(key, (object,))
+        if isinstance(value, bool) or not isinstance(value, types):
+            raise ConfigError(f"config key '{key}': expected {' or '.join(t.__name__ for t in types)}, got {value!r}")
+        values[key] = value
+    return InferConfig(**values)
