@@ -56,12 +56,19 @@ class Posterior:
     feature_names : tuple of str
     method : str
     settings : dict
-    counts : ndarray, (chains, 5)
-        Flip proposals/accepts, weight proposals/accepts, likelihood evaluations per chain.
+    counts : ndarray, (chains, 7)
+        Flip proposals/accepts, weight proposals/accepts, likelihood evaluations, parameter proposals/accepts.
     seed : int
     runtime_s : float
         Wall time of the whole sampling call.
     chain_runtime_s : ndarray, (chains,)
+    parameters : ndarray, (chains, draws, P)
+        Parametric constraint locations :math:`\vartheta` (NaN while the constraint is inactive, ``pbicrl``).
+    map_parameters : ndarray, (P,)
+    parameter_names : tuple of str
+        ``"<constraint>.<parameter>"``.
+    parameter_owner : tuple of int
+        Feature index of the constraint each parameter belongs to.
     extra : dict
         Anything else to report (data description, margins, ...).
     """
@@ -81,14 +88,23 @@ class Posterior:
     seed: int
     runtime_s: float
     chain_runtime_s: NDArray[np.float64]
+    parameters: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    map_parameters: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    parameter_names: tuple[str, ...] = ()
+    parameter_owner: tuple[int, ...] = ()
     extra: dict = field(default_factory=dict)
 
     @classmethod
     def from_chains(cls, results: Sequence[dict], *, kernel: "Kernel", seed: int, runtime_s: float,
                     feature_names: Sequence[str] | None = None) -> "Posterior":
         best = int(np.argmax([r["map_log_posterior"] for r in results]))
-        d = kernel.likelihood.n_features
-        names = tuple(feature_names) if feature_names is not None else tuple(f"f{j}" for j in range(d))
+        dk = kernel.likelihood.n_features
+        names = tuple(feature_names) if feature_names is not None else tuple(f"f{j}" for j in range(dk))
+        cs = kernel.constraints
+        owner: tuple[int, ...] = ()
+        if cs is not None:
+            names = names + cs.names
+            owner = tuple(dk + m for m in range(cs.n_constraints) for _ in range(cs.constraints[m].n_params))
         return cls(
             indicators=np.stack([r["indicators"] for r in results]),
             penalty_weights=np.stack([r["penalty_weights"] for r in results]),
@@ -101,6 +117,7 @@ class Posterior:
             feature_names=names,
             method=kernel.settings.method,
             settings=kernel.settings.to_dict() | {"beta": kernel.likelihood.beta,
+                                                  "constraints": None if cs is None else cs.to_dict(),
                                                   "nominal_weights": kernel.likelihood.nominal_weights.tolist(),
                                                   "protocol": kernel.likelihood.preferences.protocol,
                                                   "n_pairs": kernel.likelihood.preferences.n_pairs},
@@ -108,6 +125,10 @@ class Posterior:
             seed=seed,
             runtime_s=float(runtime_s),
             chain_runtime_s=np.array([r["runtime_s"] for r in results]),
+            parameters=np.stack([r["parameters"] for r in results]),
+            map_parameters=np.asarray(results[best]["map_parameters"]),
+            parameter_names=() if cs is None else cs.param_names,
+            parameter_owner=owner,
         )
 
     # ------------------------------------------------------------------ shapes
@@ -160,6 +181,30 @@ class Posterior:
                 ci[j] = np.quantile(w[c[:, j], j], [0.05, 0.95])
         return mean, ci
 
+    @property
+    def map_parameters_active(self) -> NDArray[np.float64]:
+        """MAP :math:`\vartheta`, NaN for parameters of constraints the MAP switches off."""
+        out = self.map_parameters.astype(float).copy()
+        for p, j in enumerate(self.parameter_owner):
+            if not self.map_indicators[j]:
+                out[p] = np.nan
+        return out
+
+    def parameter_summary(self) -> dict[str, dict[str, Any]]:
+        """Per parameter: posterior mean and 90% interval over draws where its constraint is active."""
+        out: dict[str, dict[str, Any]] = {}
+        if not self.parameter_names:
+            return out
+        th = self.parameters.reshape(-1, len(self.parameter_names))
+        on = self.indicators.reshape(-1, self.n_features)
+        for p, name in enumerate(self.parameter_names):
+            x = th[on[:, self.parameter_owner[p]] == 1, p]
+            x = x[np.isfinite(x)]
+            out[name] = {"mean": _py(x.mean()) if x.size else None,
+                         "ci90": [_py(v) for v in np.quantile(x, [0.05, 0.95])] if x.size else [None, None],
+                         "active_draws": int(x.size)}
+        return out
+
     def acceptance_rate(self) -> dict[str, float]:
         """Acceptance rate per move type over all chains."""
         tot = self.counts.sum(axis=0)
@@ -168,8 +213,11 @@ class Posterior:
             out["flip"] = float(tot[1] / tot[0])
         if tot[2]:
             out["weight"] = float(tot[3] / tot[2])
-        prop = tot[0] + tot[2]
-        out["overall"] = float((tot[1] + tot[3]) / prop) if prop else 0.0
+        if tot.size > 5 and tot[5]:
+            out["parameter"] = float(tot[6] / tot[5])
+        prop = tot[0] + tot[2] + (tot[5] if tot.size > 5 else 0)
+        acc = tot[1] + tot[3] + (tot[6] if tot.size > 5 else 0)
+        out["overall"] = float(acc / prop) if prop else 0.0
         return out
 
     def rhat(self) -> dict[str, list[float]]:
@@ -220,6 +268,7 @@ class Posterior:
                 "indicators": by_name(self.map_indicators.astype(int)),
                 "penalty_weights": by_name(self.map_penalty_weights),
                 "effective_penalty": by_name(self.map_effective_penalty),
+                "parameters": {n: _py(v) for n, v in zip(self.parameter_names, self.map_parameters_active)},
                 "log_posterior": self.map_log_posterior,
                 "log_likelihood": self.map_log_likelihood,
             },
@@ -229,6 +278,7 @@ class Posterior:
                 "ci90": {n: [_py(a), _py(b)] for n, (a, b) in zip(names, self.ci(0.9))},
                 "penalty_given_active": {"mean": by_name(cmean), "ci90": {n: [_py(a), _py(b)] for n, (a, b) in zip(names, cci)}},
                 "rhat": {k: by_name(np.array(v)) for k, v in self.rhat().items()},
+                "parameters": self.parameter_summary(),
             },
             "acceptance_rate": self.acceptance_rate(),
             "iterations": int(self.settings["iterations"]),
@@ -256,6 +306,15 @@ class Posterior:
             lines.append(f"{n:<{w}}  {self.p_constraint[j]:7.3f}  {int(self.map_indicators[j]):5d}  "
                          f"{self.map_effective_penalty[j]:10.4g}  {self.mean_effective_penalty[j]:10.4g}  "
                          f"[{ci[j, 0]:9.4g}, {ci[j, 1]:9.4g}]  {rh[j]:6.3f}")
+        if self.parameter_names:
+            pw = max(10, max(len(n) for n in self.parameter_names))
+            lines.append("")
+            lines.append(f"{'parameter':<{pw}}  {'MAP':>10}  {'mean':>10}  {'90% interval':>22}")
+            mp = self.map_parameters_active
+            for k, (n, v) in enumerate(self.parameter_summary().items()):
+                lo, hi = (v["ci90"][0], v["ci90"][1]) if v["mean"] is not None else (np.nan, np.nan)
+                mean = np.nan if v["mean"] is None else v["mean"]
+                lines.append(f"{n:<{pw}}  {mp[k]:10.4g}  {mean:10.4g}  [{lo:9.4g}, {hi:9.4g}]")
         acc = ", ".join(f"{k} {v:.1%}" for k, v in self.acceptance_rate().items())
         lines.append(f"method {self.method}; {self.n_chains} chains x {self.settings['iterations']:,} iterations "
                      f"({self.n_draws} kept each); acceptance {acc}; {self.runtime_s:.2f} s")
@@ -268,7 +327,9 @@ class Posterior:
         arrays = {"indicators": self.indicators, "penalty_weights": self.penalty_weights,
                   "effective_penalty": self.effective_penalty, "log_likelihood": self.log_likelihood,
                   "log_prior": self.log_prior, "feature_names": np.array(self.feature_names, dtype=np.str_),
-                  "map_indicators": self.map_indicators, "map_penalty_weights": self.map_penalty_weights}
+                  "map_indicators": self.map_indicators, "map_penalty_weights": self.map_penalty_weights,
+                  "parameters": self.parameters, "map_parameters": self.map_parameters,
+                  "parameter_names": np.array(self.parameter_names, dtype=np.str_)}
         return write_run_dir(out_dir, {"summary.json": self.summary()}, {"chains.npz": arrays}, overwrite=overwrite)
 
 

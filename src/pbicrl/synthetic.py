@@ -133,3 +133,38 @@ def make_problem(
     names = [f"constraint{j}" if constraint[j] else f"feature{j}" for j in range(d)]
     ds = Dataset.from_trajectories(feats, group, feature_names=names, nominal_weights=wn)
     return SyntheticProblem(ds, w, constraint.astype(np.int64), wp)
+
+
+def make_wall_problem(
+    n_per_group: int = 50,
+    *,
+    wall: float = 8.0,
+    length: int = 200,
+    seed: int | np.random.Generator | None = 0,
+) -> SyntheticProblem:
+    """1-D forward motion with an unobserved wall at ``x >= wall`` (the HalfCheetah/Ant setting).
+
+    Known features per step: forward displacement and squared action norm, nominal weights ``[20, -0.1]``.
+    Group 1 trajectories run up to the wall and stop short of it (between 90% and 99.5% of ``wall``);
+    group 2 trajectories cross it. States: ``x`` (k = 1).
+    ``true_penalty`` holds the known features' zeros; the wall itself is described by ``wall``.
+    """
+    rng = np.random.default_rng(seed)
+    feats, states, group = [], [], []
+    for g in (1, 2):
+        for _ in range(n_per_group):
+            # good demonstrators run up to the wall and stop just short of it, as SAC does with the penalty
+            end = rng.uniform(0.9 * wall, 0.995 * wall) if g == 1 else rng.uniform(1.15 * wall, 3.0 * wall)
+            v = end / length
+            dx = np.clip(v + 0.3 * v * rng.standard_normal(length), 0.0, None)
+            x = np.cumsum(dx)
+            if g == 1:
+                x = np.minimum(x, end)
+                dx = np.diff(np.concatenate([[0.0], x]))
+            act = (rng.uniform(0.2, 1.0) + 0.1 * rng.standard_normal(length)) ** 2
+            feats.append(np.c_[dx, act])
+            states.append(x[:, None])
+            group.append(g)
+    ds = Dataset.from_trajectories(feats, group, states=states, feature_names=["forward_displacement", "action_sq_norm"],
+                                   nominal_weights=[20.0, -0.1])
+    return SyntheticProblem(ds, np.array([20.0, -0.1]), np.zeros(2, dtype=np.int64), np.zeros(2))

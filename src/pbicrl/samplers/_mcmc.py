@@ -1,8 +1,12 @@
-"""Compiled Metropolis-Hastings loop shared by the PBICRL, paper (Algorithm 1) and BPL samplers.
+"""Compiled Metropolis-Hastings loop shared by the PBICRL, paper (Algorithms 1/2) and BPL samplers.
 
 All randomness arrives as pre-drawn arrays (one row of uniforms/normals per iteration), so a chain is a
-pure function of its inputs and identical whatever the chunking. State lives in small arrays mutated in
-place; :mod:`pbicrl.samplers.kernels` wraps them in NamedTuples.
+pure function of its inputs. State lives in small arrays mutated in place; :mod:`pbicrl.samplers.kernels`
+wraps them in NamedTuples.
+
+Features ``0..d_known-1`` are known features; features ``d_known..`` are parametric constraints whose
+(scaled) mean-feature rows of ``FbT`` are recomputed from :math:`\\vartheta` by
+:func:`pbicrl.samplers._parametric.param_column`.
 """
 
 from __future__ import annotations
@@ -13,13 +17,15 @@ import numpy as np
 from numba import njit
 
 from pbicrl._kernels import total_loglik
+from pbicrl.samplers._parametric import param_column
 
 MODE_PBICRL = 0  # flip-and-draw moves (reversible jump), valid for the stated prior
-MODE_PAPER = 1  # the paper's Algorithm 1 verbatim
+MODE_PAPER = 1  # the paper's Algorithm 1 (2 with a schedule that does propose theta)
 MODE_BPL = 2  # Algorithm 3: weights only, every feature on
 
 # counters layout
-C_FLIP_PROP, C_FLIP_ACC, C_W_PROP, C_W_ACC, C_EVALS = 0, 1, 2, 3, 4
+C_FLIP_PROP, C_FLIP_ACC, C_W_PROP, C_W_ACC, C_EVALS, C_T_PROP, C_T_ACC = 0, 1, 2, 3, 4, 5, 6
+N_COUNTS = 7
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -44,141 +50,247 @@ def _lognormal(w: float, mu: float, s: float) -> float:
     return -0.5 * z * z - math.log(s) - _LOG_SQRT_2PI
 
 
+@njit(cache=True)
+def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: np.ndarray, use_prior: bool) -> float:
+    """Uniform prior on the box [tlo, thi] for parameters p0..p1-1 (bounds always enforced)."""
+    total = 0.0
+    for p in range(p0, p1):
+        if theta[p] < tlo[p] or theta[p] > thi[p] or theta[p] != theta[p]:
+            return -np.inf
+        if use_prior:
+            total -= math.log(thi[p] - tlo[p])
+    return total
+
+
 @njit(cache=True, error_model="numpy")
-def run_chunk(mode, n, it0, burn_in, thin, adapt_every,
-              c, w, a, scal, FbT, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi,
-              u_j, u_mv, z, u_acc,
-              cand, p_flip, f_s, log_odds, pkind, prm,
-              sigma, q_mu, q_s, ad_n, ad_sum, ad_sq, ad_prop, ad_acc,
-              out_c, out_w, out_ll, out_lp, n_out,
-              map_c, map_w, map_scal, counts, a_new, memo_valid, memo_ll):
+def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known,
+              c, w, theta, a, scal, FbT, beta,
+              brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi,
+              fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi,
+              u_j, u_mv, z, u_acc, zt,
+              cand, p_flip, p_theta, f_s, log_odds, pkind, prm,
+              sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt,
+              out_c, out_w, out_t, out_ll, out_lp, n_out,
+              map_c, map_w, map_t, map_scal, counts,
+              a_new, col_new, theta_new, memo_valid, memo_ll):
     """Advance one chain by ``n`` iterations (global iteration numbers ``it0 .. it0+n-1``, 0-based).
 
     ``scal`` = [log-likelihood, log-prior]; ``map_scal`` = [best log-posterior, its log-likelihood];
     ``n_out`` = [number of stored draws]. Draws are stored after ``burn_in`` every ``thin`` iterations.
+    ``ad`` (5, d) and ``adt`` (5, P) are warm-up accumulators (count, sum, sum of squares; proposals, accepts).
+    In ``pbicrl`` mode ``memo_ll[j]`` caches the likelihood with feature ``j`` switched off (valid while no
+    other component changes); in ``paper`` mode it caches the likelihood of flipping ``j``.
     """
     d = w.size
     N = a.size
+    P = theta.size
     nc = cand.size
     ll = scal[0]
     lp = scal[1]
+    use_prior = mode != MODE_PAPER
     for t in range(n):
         it = it0 + t
-        do_flip = False
+        move = 0  # 0 none, 1 flip, 2 weight, 3 theta
         j = -1
         if mode == MODE_PAPER:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
-            do_flip = ((it + 1) % f_s) != 0  # paper counts iterations from 1
+            if ((it + 1) % f_s) != 0:  # paper counts iterations from 1
+                move = 1
+            elif j >= d_known and u_mv[t] < p_theta:
+                move = 3
+            else:
+                move = 2
         elif mode == MODE_BPL:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
+            move = 3 if (j >= d_known and u_mv[t] < p_theta) else 2
         else:
-            do_flip = u_mv[t] < p_flip
-            if do_flip:
+            if u_mv[t] < p_flip:
                 j = cand[min(int(u_j[t] * nc), nc - 1)]
+                move = 1
             else:
+                want_theta = u_mv[t] < p_flip + p_theta
                 n_on = 0
                 for k in range(nc):
-                    n_on += c[cand[k]]
-                if n_on == 0:
-                    j = -1  # identity move: no weight to step
-                else:
+                    if c[cand[k]] == 1 and (not want_theta or cand[k] >= d_known):
+                        n_on += 1
+                if n_on > 0:
                     pick = min(int(u_j[t] * n_on), n_on - 1)
                     for k in range(nc):
-                        if c[cand[k]] == 1:
+                        if c[cand[k]] == 1 and (not want_theta or cand[k] >= d_known):
                             if pick == 0:
                                 j = cand[k]
                                 break
                             pick -= 1
+                    move = 3 if want_theta else 2
         accepted = False
-        if j >= 0:
-            if do_flip:
-                counts[C_FLIP_PROP] += 1
-                if mode == MODE_PAPER:
-                    # flip c_j, keep the latent w_j; likelihood ratio only (Algorithm 1, lines 6, 11-15)
-                    delta = w[j] if c[j] == 0 else -w[j]
-                    if memo_valid[j]:  # same state, same proposal: reuse its likelihood
-                        ll_new = memo_ll[j]
+        if move == 1:
+            counts[C_FLIP_PROP] += 1
+            if mode == MODE_PAPER:
+                # flip c_j, keep the latent weight (and parameters); likelihood ratio only
+                delta = w[j] if c[j] == 0 else -w[j]
+                if memo_valid[j]:
+                    ll_new = memo_ll[j]
+                else:
+                    for i in range(N):
+                        a_new[i] = a[i] + delta * FbT[j, i]
+                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    counts[C_EVALS] += 1
+                    memo_valid[j] = True
+                    memo_ll[j] = ll_new
+                log_r = ll_new - ll
+                if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
+                    for i in range(N):
+                        a[i] += delta * FbT[j, i]
+                    c[j] = 1 - c[j]
+                    ll = ll_new
+                    accepted = True
+            elif c[j] == 0:
+                # reversible jump on: draw w_j ~ q_j (and theta_j ~ q_theta for a parametric constraint)
+                w_new = q_mu[j] + q_s[j] * z[t]
+                lpw = _logprior_w(pkind[j], prm, j, w_new)
+                lq = _lognormal(w_new, q_mu[j], q_s[j])
+                if j >= d_known:
+                    m = j - d_known
+                    p0 = poff[m]
+                    p1 = poff[m + 1]
+                    for p in range(P):
+                        theta_new[p] = theta[p]
+                    for p in range(p0, p1):
+                        theta_new[p] = qt_mu[p] + qt_s[p] * zt[t, p - p0]
+                        lq += _lognormal(theta_new[p], qt_mu[p], qt_s[p])
+                    lpw += _logprior_theta(theta_new, p0, p1, tlo, thi, True)
+                if lpw > -np.inf:
+                    if j >= d_known:
+                        param_column(j - d_known, theta_new, beta, fam, sign, poff, dims_off, dims, sorted_vals,
+                                     states, offsets, inv_len, col_new, False)
                     else:
                         for i in range(N):
-                            a_new[i] = a[i] + delta * FbT[j, i]
-                        ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
-                        counts[C_EVALS] += 1
-                        memo_valid[j] = True
-                        memo_ll[j] = ll_new
-                    log_r = ll_new - ll
+                            col_new[i] = FbT[j, i]
+                    for i in range(N):
+                        a_new[i] = a[i] + w_new * col_new[i]
+                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    counts[C_EVALS] += 1
+                    log_r = ll_new - ll + log_odds + lpw - lq
+                    if math.log(u_acc[t]) < log_r:
+                        memo_ll[j] = ll  # the off-state likelihood stays known
+                        for i in range(N):
+                            a[i] = a_new[i]
+                        if j >= d_known:
+                            m = j - d_known
+                            for p in range(poff[m], poff[m + 1]):
+                                theta[p] = theta_new[p]
+                            for i in range(N):
+                                FbT[j, i] = col_new[i]
+                        c[j] = 1
+                        w[j] = w_new
+                        ll = ll_new
+                        lp += log_odds + lpw
+                        accepted = True
+            else:
+                # reversible jump off: drop w_j (and theta_j); the reverse of the move above
+                lpw = _logprior_w(pkind[j], prm, j, w[j])
+                lq = _lognormal(w[j], q_mu[j], q_s[j])
+                if j >= d_known:
+                    m = j - d_known
+                    lpw += _logprior_theta(theta, poff[m], poff[m + 1], tlo, thi, True)
+                    for p in range(poff[m], poff[m + 1]):
+                        lq += _lognormal(theta[p], qt_mu[p], qt_s[p])
+                if memo_valid[j]:
+                    ll_new = memo_ll[j]
+                else:
+                    for i in range(N):
+                        a_new[i] = a[i] - w[j] * FbT[j, i]
+                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    counts[C_EVALS] += 1
+                    memo_valid[j] = True
+                    memo_ll[j] = ll_new
+                log_r = ll_new - ll - log_odds - lpw + lq
+                if math.log(u_acc[t]) < log_r:
+                    for i in range(N):
+                        a[i] -= w[j] * FbT[j, i]
+                    c[j] = 0
+                    w[j] = 0.0
+                    ll = ll_new
+                    lp -= log_odds + lpw
+                    accepted = True
+            if accepted:
+                counts[C_FLIP_ACC] += 1
+        elif move == 2:
+            counts[C_W_PROP] += 1
+            ad[3, j] += 1
+            step = sigma[j] * z[t]
+            w_new = w[j] + step
+            lp_old = _logprior_w(pkind[j], prm, j, w[j]) if use_prior else 0.0
+            lp_newj = _logprior_w(pkind[j], prm, j, w_new) if use_prior else 0.0
+            if lp_newj > -np.inf:
+                if c[j] == 0:
+                    # paper mode only: an inactive weight leaves the likelihood unchanged, always accepted
+                    w[j] = w_new
+                    accepted = True
+                else:
+                    for i in range(N):
+                        a_new[i] = a[i] + step * FbT[j, i]
+                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    counts[C_EVALS] += 1
+                    log_r = ll_new - ll + lp_newj - lp_old
                     if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
                         for i in range(N):
-                            a[i] += delta * FbT[j, i]
-                        c[j] = 1 - c[j]
-                        ll = ll_new
-                        accepted = True
-                else:
-                    # reversible-jump flip: switching on draws w_j ~ q_j; switching off drops it
-                    if c[j] == 0:
-                        w_new = q_mu[j] + q_s[j] * z[t]
-                        lpw = _logprior_w(pkind[j], prm, j, w_new)
-                        if lpw > -np.inf:
-                            for i in range(N):
-                                a_new[i] = a[i] + w_new * FbT[j, i]
-                            ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
-                            counts[C_EVALS] += 1
-                            log_r = ll_new - ll + log_odds + lpw - _lognormal(w_new, q_mu[j], q_s[j])
-                            if math.log(u_acc[t]) < log_r:
-                                for i in range(N):
-                                    a[i] = a_new[i]
-                                c[j] = 1
-                                w[j] = w_new
-                                ll = ll_new
-                                lp += log_odds + lpw
-                                accepted = True
-                    else:
-                        lpw = _logprior_w(pkind[j], prm, j, w[j])
-                        for i in range(N):
-                            a_new[i] = a[i] - w[j] * FbT[j, i]
-                        ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
-                        counts[C_EVALS] += 1
-                        log_r = ll_new - ll - log_odds - lpw + _lognormal(w[j], q_mu[j], q_s[j])
-                        if math.log(u_acc[t]) < log_r:
-                            for i in range(N):
-                                a[i] = a_new[i]
-                            c[j] = 0
-                            w[j] = 0.0
-                            ll = ll_new
-                            lp -= log_odds + lpw
-                            accepted = True
-                if accepted:
-                    counts[C_FLIP_ACC] += 1
-            else:
-                counts[C_W_PROP] += 1
-                ad_prop[j] += 1
-                step = sigma[j] * z[t]
-                w_new = w[j] + step
-                lp_old = _logprior_w(pkind[j], prm, j, w[j]) if mode != MODE_PAPER else 0.0
-                lp_newj = _logprior_w(pkind[j], prm, j, w_new) if mode != MODE_PAPER else 0.0
-                if lp_newj > -np.inf:
-                    if c[j] == 0:
-                        # paper mode only: an inactive weight leaves the likelihood unchanged, always accepted
+                            a[i] = a_new[i]
                         w[j] = w_new
+                        ll = ll_new
+                        lp += lp_newj - lp_old
                         accepted = True
-                    else:
-                        for i in range(N):
-                            a_new[i] = a[i] + step * FbT[j, i]
-                        ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
-                        counts[C_EVALS] += 1
-                        log_r = ll_new - ll + lp_newj - lp_old
-                        if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
-                            for i in range(N):
-                                a[i] = a_new[i]
-                            w[j] = w_new
-                            ll = ll_new
-                            lp += lp_newj - lp_old
-                            accepted = True
-                if accepted:
-                    counts[C_W_ACC] += 1
-                    ad_acc[j] += 1
             if accepted:
+                counts[C_W_ACC] += 1
+                ad[4, j] += 1
+        elif move == 3:
+            m = j - d_known
+            p0 = poff[m]
+            p1 = poff[m + 1]
+            counts[C_T_PROP] += 1
+            adt[3, p0] += 1
+            for p in range(P):
+                theta_new[p] = theta[p]
+            for p in range(p0, p1):
+                theta_new[p] = theta[p] + sigma_t[p] * zt[t, p - p0]
+            lpt_new = _logprior_theta(theta_new, p0, p1, tlo, thi, use_prior)
+            if lpt_new > -np.inf:
+                lpt_old = _logprior_theta(theta, p0, p1, tlo, thi, use_prior)
+                param_column(m, theta_new, beta, fam, sign, poff, dims_off, dims, sorted_vals, states, offsets,
+                             inv_len, col_new, False)
+                if c[j] == 0:
+                    # paper mode only: a latent location leaves the likelihood unchanged
+                    accepted = True
+                else:
+                    for i in range(N):
+                        a_new[i] = a[i] + w[j] * (col_new[i] - FbT[j, i])
+                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    counts[C_EVALS] += 1
+                    log_r = ll_new - ll + lpt_new - lpt_old
+                    if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
+                        for i in range(N):
+                            a[i] = a_new[i]
+                        ll = ll_new
+                        lp += lpt_new - lpt_old
+                        accepted = True
+                if accepted:
+                    for p in range(p0, p1):
+                        theta[p] = theta_new[p]
+                    for i in range(N):
+                        FbT[j, i] = col_new[i]
+            if accepted:
+                counts[C_T_ACC] += 1
+                adt[4, p0] += 1
+        if accepted:
+            if mode == MODE_PAPER:
                 for k in range(d):
                     memo_valid[k] = False
+            else:
+                for k in range(d):
+                    if k != j:
+                        memo_valid[k] = False
+                if move == 1:
+                    memo_valid[j] = True  # memo_ll[j] holds the off-state likelihood (set above)
         # MAP over every visited state
         if ll + lp > map_scal[0]:
             map_scal[0] = ll + lp
@@ -186,34 +298,61 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every,
             for k in range(d):
                 map_c[k] = c[k]
                 map_w[k] = w[k]
+            for p in range(P):
+                map_t[p] = theta[p]
         if it < burn_in:
             if mode == MODE_PBICRL:
                 for k in range(d):
                     if c[k] == 1:
-                        ad_n[k] += 1
-                        ad_sum[k] += w[k]
-                        ad_sq[k] += w[k] * w[k]
+                        ad[0, k] += 1
+                        ad[1, k] += w[k]
+                        ad[2, k] += w[k] * w[k]
+                        if k >= d_known:
+                            for p in range(poff[k - d_known], poff[k - d_known + 1]):
+                                adt[0, p] += 1
+                                adt[1, p] += theta[p]
+                                adt[2, p] += theta[p] * theta[p]
             if adapt_every > 0 and (it + 1) % adapt_every == 0:
                 for k in range(d):
-                    if ad_prop[k] >= 10:
-                        rate = ad_acc[k] / ad_prop[k]
-                        sigma[k] *= math.exp(rate - 0.3)  # Robbins-Monro towards ~30% acceptance
-                    ad_prop[k] = 0
-                    ad_acc[k] = 0
-                    if mode == MODE_PBICRL and ad_n[k] >= 20:
-                        mean = ad_sum[k] / ad_n[k]
-                        var = max(ad_sq[k] / ad_n[k] - mean * mean, 0.0)
+                    if ad[3, k] >= 10:
+                        sigma[k] *= math.exp(ad[4, k] / ad[3, k] - 0.3)  # Robbins-Monro towards ~30% acceptance
+                    ad[3, k] = 0
+                    ad[4, k] = 0
+                    if mode == MODE_PBICRL and ad[0, k] >= 20:
+                        mean = ad[1, k] / ad[0, k]
+                        var = max(ad[2, k] / ad[0, k] - mean * mean, 0.0)
                         q_mu[k] = mean
                         q_s[k] = max(2.0 * math.sqrt(var), sigma[k])  # wide: the window is autocorrelated
-                        ad_n[k] = 0
-                        ad_sum[k] = 0.0
-                        ad_sq[k] = 0.0
+                        ad[0, k] = 0
+                        ad[1, k] = 0.0
+                        ad[2, k] = 0.0
+                for mm in range(poff.size - 1):
+                    p0 = poff[mm]
+                    if adt[3, p0] >= 10:
+                        f = math.exp(adt[4, p0] / adt[3, p0] - 0.3)
+                        for p in range(p0, poff[mm + 1]):
+                            sigma_t[p] *= f
+                    adt[3, p0] = 0
+                    adt[4, p0] = 0
+                    for p in range(p0, poff[mm + 1]):
+                        if mode == MODE_PBICRL and adt[0, p] >= 20:
+                            mean = adt[1, p] / adt[0, p]
+                            var = max(adt[2, p] / adt[0, p] - mean * mean, 0.0)
+                            qt_mu[p] = mean
+                            qt_s[p] = max(2.0 * math.sqrt(var), sigma_t[p])
+                            adt[0, p] = 0
+                            adt[1, p] = 0.0
+                            adt[2, p] = 0.0
         elif (it - burn_in) % thin == 0:
             r = n_out[0]
             if r < out_ll.size:
                 for k in range(d):
                     out_c[r, k] = c[k]
                     out_w[r, k] = w[k]
+                for mm in range(poff.size - 1):
+                    off = mode == MODE_PBICRL and c[d_known + mm] == 0
+                    for p in range(poff[mm], poff[mm + 1]):
+                        out_t[r, p] = np.nan if off else theta[p]
                 out_ll[r] = ll
                 out_lp[r] = lp
                 n_out[0] = r + 1

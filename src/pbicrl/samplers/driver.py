@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from pbicrl.constraints import ConstraintSet
 from pbicrl.likelihood import PreferenceLikelihood
 from pbicrl.results import Posterior
 from pbicrl.samplers.kernels import ChainState, Kernel, SamplerSettings, build_kernel
@@ -24,10 +25,7 @@ def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_count
     """Run one chain to completion; returns its draws, MAP, counters and runtime."""
     rng = np.random.default_rng(seed)
     s = kernel.settings
-    d = kernel.likelihood.n_features
-    n_draws = s.n_draws
-    out = (np.zeros((n_draws, d), np.int8), np.zeros((n_draws, d)), np.zeros(n_draws), np.zeros(n_draws),
-           np.zeros(1, np.int64))
+    out = kernel.new_buffers(s.n_draws)
     t0 = time.perf_counter()
     state: ChainState = kernel.init(rng)
     done = 0
@@ -39,11 +37,13 @@ def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_count
             with progress_counter.get_lock():
                 progress_counter.value += n
     runtime = time.perf_counter() - t0
-    k = int(out[4][0])
-    return {"indicators": out[0][:k], "penalty_weights": out[1][:k], "log_likelihood": out[2][:k],
-            "log_prior": out[3][:k], "map_indicators": state.map_indicators, "map_penalty_weights": state.map_penalty_weights,
+    k = int(out[5][0])
+    return {"indicators": out[0][:k], "penalty_weights": out[1][:k], "parameters": out[2][:k],
+            "log_likelihood": out[3][:k], "log_prior": out[4][:k], "map_indicators": state.map_indicators,
+            "map_penalty_weights": state.map_penalty_weights, "map_parameters": state.map_parameters,
             "map_log_posterior": state.map_log_posterior, "map_log_likelihood": state.map_log_likelihood,
             "counts": state.counts, "sigma": state.sigma, "q_mean": state.q_mean, "q_scale": state.q_scale,
+            "sigma_theta": state.sigma_theta,
             "runtime_s": runtime}
 
 
@@ -65,6 +65,7 @@ def sample(
     n_jobs: int | None = None,
     progress: bool = True,
     feature_names: tuple[str, ...] | None = None,
+    constraints: ConstraintSet | None = None,
     **overrides: Any,
 ) -> Posterior:
     """Sample the posterior with ``n_chains`` independent chains.
@@ -83,8 +84,11 @@ def sample(
     progress : bool
         Show a progress bar (on stderr).
     feature_names : tuple of str, optional
+        Names of the known features (parametric constraints are named after themselves).
+    constraints : ConstraintSet, optional
+        Parametric constraints (paper Algorithm 2), appended after the known features.
     """
-    kernel = build_kernel(likelihood, settings, **overrides)
+    kernel = build_kernel(likelihood, settings, constraints=constraints, **overrides)
     if int(n_chains) < 1:
         raise ValueError(f"chains: need at least 1 chain, got {n_chains}")
     seeds = np.random.SeedSequence(int(seed)).spawn(int(n_chains))

@@ -37,6 +37,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.constraints import ConstraintSet
 from pbicrl.likelihood import PreferenceLikelihood
 from pbicrl.priors import IndicatorPrior, PriorError, WeightPrior
 from pbicrl.samplers import _mcmc
@@ -49,7 +50,7 @@ _MODE = {"pbicrl": _mcmc.MODE_PBICRL, "paper": _mcmc.MODE_PAPER, "bpl": _mcmc.MO
 
 @dataclass(frozen=True)
 class SamplerSettings:
-    """Settings of a sampler (bound into a :class:`Kernel` by :func:`build_kernel`).
+    r"""Settings of a sampler (bound into a :class:`Kernel` by :func:`build_kernel`).
 
     Parameters
     ----------
@@ -76,7 +77,15 @@ class SamplerSettings:
     weight_prior, indicator_prior
         Priors (see :mod:`pbicrl.priors`). The paper mode ignores them (flat improper).
     candidates : sequence of int or None
-        Features that may be constraints (default: all). Others keep :math:`c_j = 0`.
+        Features that may be constraints (default: all known features, or only the parametric
+        constraints when there are any, as in Algorithm 2). Others keep :math:`c_j = 0`.
+    sigma_theta : float
+        Random-walk step :math:`\sigma_2` of the constraint parameters (paper HalfCheetah/Ant: 0.5).
+    p_theta : float or None
+        Probability of a parameter step. ``pbicrl``: per iteration (default 0.25 with parametric
+        constraints); ``paper``/``bpl``: at iterations that would step a weight (default 0.5). Algorithm 2
+        as printed never proposes :math:`\vartheta` (its ``elsif i mod f_s != 1`` branch is always taken);
+        this schedule does.
     """
 
     method: Literal["pbicrl", "paper", "bpl"] = "pbicrl"
@@ -91,6 +100,8 @@ class SamplerSettings:
     weight_prior: WeightPrior = field(default_factory=WeightPrior)
     indicator_prior: IndicatorPrior = field(default_factory=IndicatorPrior)
     candidates: tuple[int, ...] | None = None
+    sigma_theta: float = 0.5
+    p_theta: float | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -114,6 +125,12 @@ class SamplerSettings:
                              "otherwise); use 'flat' with bounds, or method='paper'")
         if self.candidates is not None:
             object.__setattr__(self, "candidates", tuple(int(j) for j in self.candidates))
+        if not (np.isfinite(self.sigma_theta) and self.sigma_theta > 0):
+            raise ValueError(f"sigma_theta: the parameter step must be positive, got {self.sigma_theta}")
+        if self.p_theta is not None and not (0.0 <= self.p_theta < 1.0):
+            raise ValueError(f"p_theta: must lie in [0, 1), got {self.p_theta}")
+        if self.method == "pbicrl" and self.p_theta is not None and self.p_flip + self.p_theta >= 1.0:
+            raise ValueError(f"p_flip + p_theta must be < 1 (weight steps need the rest), got {self.p_flip} + {self.p_theta}")
 
     @property
     def burn_in_(self) -> int:
@@ -140,46 +157,58 @@ class SamplerSettings:
                 "thin": self.thin_, "sigma": self.sigma, "f_s": self.f_s, "p_flip": self.p_flip,
                 "adapt": self.adapt_, "init_scale": self.init_scale, "weight_prior": self.weight_prior.to_dict(),
                 "indicator_prior": {"pi": self.indicator_prior.pi},
-                "candidates": None if self.candidates is None else list(self.candidates)}
+                "candidates": None if self.candidates is None else list(self.candidates),
+                "sigma_theta": self.sigma_theta, "p_theta": self.p_theta}
 
 
 class ChainState(NamedTuple):
-    """State of one chain.
+    r"""State of one chain.
 
     Attributes
     ----------
     indicators : ndarray (d,) int8
-        :math:`c`.
+        :math:`c` (known features first, then parametric constraints).
     penalty_weights : ndarray (d,)
         :math:`w_p` (0 for inactive features in ``pbicrl`` mode; latent in ``paper`` mode).
+    parameters : ndarray (P,)
+        :math:`\vartheta` of all parametric constraints (meaningless where inactive in ``pbicrl`` mode).
     scaled_returns : ndarray (N,)
-        :math:`a = \\beta \\bar\\Phi (w_n + c \\circ w_p)`.
+        :math:`a = \beta \bar\Phi (w_n + c \circ w_p)`.
+    features_T : ndarray (d, N)
+        :math:`\beta \bar\Phi^\top`, parametric rows at the current :math:`\vartheta`.
     log_likelihood, log_prior : float
     iteration : int
-        Iterations done.
     sigma, q_mean, q_scale : ndarray (d,)
-        Random-walk scales and flip-and-draw proposals (adapted during warm-up).
-    adapt_stats : ndarray (5, d)
-        Warm-up accumulators.
-    map_indicators, map_penalty_weights : ndarray (d,)
+        Weight random-walk scales and flip-and-draw proposals (adapted during warm-up).
+    sigma_theta, q_theta_mean, q_theta_scale : ndarray (P,)
+        The same for the parameters.
+    adapt_stats : ndarray (5, d); adapt_theta_stats : ndarray (5, P)
+    map_indicators, map_penalty_weights, map_parameters : ndarray
         Best state visited (highest log-posterior).
     map_log_posterior, map_log_likelihood : float
-    counts : ndarray (5,) int64
-        Flip proposals, flip accepts, weight proposals, weight accepts, likelihood evaluations.
+    counts : ndarray (7,) int64
+        Flip proposals/accepts, weight proposals/accepts, likelihood evaluations, parameter proposals/accepts.
     """
 
     indicators: NDArray[np.int8]
     penalty_weights: NDArray[np.float64]
+    parameters: NDArray[np.float64]
     scaled_returns: NDArray[np.float64]
+    features_T: NDArray[np.float64]
     log_likelihood: float
     log_prior: float
     iteration: int
     sigma: NDArray[np.float64]
     q_mean: NDArray[np.float64]
     q_scale: NDArray[np.float64]
+    sigma_theta: NDArray[np.float64]
+    q_theta_mean: NDArray[np.float64]
+    q_theta_scale: NDArray[np.float64]
     adapt_stats: NDArray[np.float64]
+    adapt_theta_stats: NDArray[np.float64]
     map_indicators: NDArray[np.int8]
     map_penalty_weights: NDArray[np.float64]
+    map_parameters: NDArray[np.float64]
     map_log_posterior: float
     map_log_likelihood: float
     counts: NDArray[np.int64]
@@ -188,49 +217,108 @@ class ChainState(NamedTuple):
 class StepInfo(NamedTuple):
     """What one step did."""
 
-    move: str  # "flip", "weight" or "none"
+    move: str  # "flip", "weight", "parameter" or "none"
     accepted: bool
     log_likelihood: float
 
 
 @dataclass(frozen=True, eq=False)
 class Kernel:
-    """A sampler with its settings bound: ``init``, ``step`` and the compiled ``run``."""
+    """A sampler with its settings bound: ``init``, ``step`` and the compiled ``run``.
+
+    ``constraints`` adds parametric constraint features after the likelihood's known features.
+    """
 
     likelihood: PreferenceLikelihood
     settings: SamplerSettings
+    constraints: ConstraintSet | None = None
+
+    @property
+    def d_known(self) -> int:
+        return self.likelihood.n_features
+
+    @property
+    def n_features(self) -> int:
+        """Known features plus parametric constraints."""
+        return self.d_known + (0 if self.constraints is None else self.constraints.n_constraints)
+
+    @property
+    def n_params(self) -> int:
+        return 0 if self.constraints is None else self.constraints.n_params
 
     @property
     def _cand(self) -> NDArray[np.int64]:
-        d = self.likelihood.n_features
-        cand = np.arange(d) if self.settings.candidates is None else np.asarray(self.settings.candidates, dtype=np.int64)
+        d = self.n_features
+        if self.settings.candidates is None:
+            cand = np.arange(self.d_known, d) if self.constraints is not None else np.arange(d)
+        else:
+            cand = np.asarray(self.settings.candidates, dtype=np.int64)
         if cand.size == 0 or cand.min() < 0 or cand.max() >= d or np.unique(cand).size != cand.size:
             raise ValueError(f"candidates: expected distinct feature indices in [0, {d}), got {cand.tolist()}")
         return cand
 
+    @property
+    def p_theta_(self) -> float:
+        if self.constraints is None:
+            return 0.0
+        if self.settings.p_theta is not None:
+            return float(self.settings.p_theta)
+        return 0.25 if self.settings.method == "pbicrl" else 0.5
+
     def _prior_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         prior = WeightPrior("improper") if self.settings.method == "paper" else self.settings.weight_prior
-        return prior.as_arrays(self.likelihood.n_features)
+        return prior.as_arrays(self.n_features)
 
-    def _log_prior(self, c: NDArray, w: NDArray) -> float:
+    def _param_arrays(self) -> dict[str, NDArray]:
+        if self.constraints is not None:
+            return self.constraints.compiled_arrays()
+        N = self.likelihood.mean_features.shape[0]
+        z = np.zeros(0)
+        zi = np.zeros(0, np.int64)
+        return {"fam": zi, "sign": zi, "poff": np.zeros(1, np.int64), "dims_off": np.zeros(1, np.int64), "dims": zi,
+                "sorted_vals": np.zeros((0, 0)), "states": np.zeros((0, 0)), "offsets": np.zeros(N + 1, np.int64),
+                "inv_len": np.zeros(N), "lo": z, "hi": z}
+
+    def _log_prior(self, c: NDArray, w: NDArray, theta: NDArray) -> float:
         s = self.settings
         if s.method == "paper":
             return 0.0
         lpw = s.weight_prior.logpdf(w)
+        cs = self.constraints
+        lpt = np.zeros(self.n_features)
+        if cs is not None:
+            width = np.log(cs.bounds[:, 1] - cs.bounds[:, 0])
+            for m in range(cs.n_constraints):
+                lpt[self.d_known + m] = -width[cs.param_offsets[m]:cs.param_offsets[m + 1]].sum()
         if s.method == "bpl":
-            return float(np.sum(lpw))
+            return float(np.sum(lpw) + np.sum(lpt))
         on = c.astype(bool)
-        return float(np.sum(lpw[on]) + on.sum() * s.indicator_prior.log_odds)
+        return float(np.sum(lpw[on]) + np.sum(lpt[on]) + on.sum() * s.indicator_prior.log_odds)
+
+    def _columns(self, theta: NDArray) -> NDArray[np.float64]:
+        """(d, N) scaled mean features at ``theta``."""
+        from pbicrl.samplers._parametric import param_column
+
+        lik = self.likelihood
+        rows = [lik.scaled_features_T]
+        if self.constraints is not None:
+            A = self._param_arrays()
+            N = lik.mean_features.shape[0]
+            for m in range(self.constraints.n_constraints):
+                col = np.empty(N)
+                param_column(m, theta, lik.beta, A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"],
+                             A["sorted_vals"], A["states"], A["offsets"], A["inv_len"], col, False)
+                rows.append(col[None, :])
+        return np.ascontiguousarray(np.concatenate(rows, axis=0))
 
     def init(self, rng: np.random.Generator | int | None = None) -> ChainState:
-        """Random initial state (paper: "randomly sample penalty weight and constraint features")."""
+        """Random initial state (paper: "randomly sample penalty weight, constraint features and theta")."""
         rng = np.random.default_rng(rng)
         s = self.settings
         lik = self.likelihood
-        d = lik.n_features
+        d = self.n_features
         cand = self._cand
         c = np.zeros(d, dtype=np.int8)
-        w = np.zeros(d)
         if s.method == "bpl":
             c[:] = 1
         else:
@@ -238,46 +326,68 @@ class Kernel:
         w_draw = rng.normal(0.0, s.init_scale, d)
         if s.method != "paper":
             w_draw = np.clip(w_draw, s.weight_prior.low, s.weight_prior.high)
-        if s.method == "pbicrl":
-            w = np.where(c == 1, w_draw, 0.0)
+        w = np.where(c == 1, w_draw, 0.0) if s.method == "pbicrl" else w_draw
+        P = self.n_params
+        if self.constraints is not None:
+            lo, hi = self.constraints.bounds[:, 0], self.constraints.bounds[:, 1]
+            theta = rng.uniform(lo, hi)
+            qt_mu, qt_s = 0.5 * (lo + hi), (hi - lo) / 4.0
+            sig_t = np.minimum(np.full(P, float(s.sigma_theta)), (hi - lo) / 4.0)
         else:
-            w = w_draw
-        a = lik.beta * lik.mean_features @ (lik.nominal_weights + c * w)
+            theta = qt_mu = qt_s = sig_t = np.zeros(0)
+        FbT = self._columns(theta)
+        wn = np.concatenate([lik.nominal_weights, np.zeros(d - self.d_known)])
+        a = FbT.T @ (wn + c * w)
         ll = lik.from_scaled_returns(a)
-        lp = self._log_prior(c, w)
+        lp = self._log_prior(c, w, theta)
         sigma = np.full(d, float(s.sigma))
         q_scale = np.full(d, max(10.0 * s.sigma, 2.0 * s.init_scale) if s.weight_prior.kind == "improper"
                           else max(10.0 * s.sigma, (s.weight_prior.high - s.weight_prior.low) / 20.0))
-        return ChainState(c, w, a, ll, lp, 0, sigma, np.zeros(d), q_scale, np.zeros((5, d)),
-                          c.copy(), w.copy(), ll + lp, ll, np.zeros(5, dtype=np.int64))
+        return ChainState(c, w, theta.copy(), a, FbT, ll, lp, 0, sigma, np.zeros(d), q_scale, sig_t.copy(),
+                          qt_mu.copy(), qt_s.copy(), np.zeros((5, d)), np.zeros((5, P)), c.copy(), w.copy(),
+                          theta.copy(), ll + lp, ll, np.zeros(_mcmc.N_COUNTS, dtype=np.int64))
 
-    def draw_randoms(self, rng: np.random.Generator, n: int) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-        """The per-iteration random numbers: feature choice, move choice, normal, acceptance uniform."""
-        return rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n)
+    def _pmax(self) -> int:
+        if self.constraints is None:
+            return 1
+        return max(1, int(np.max(np.diff(self.constraints.param_offsets))))
 
-    def run(self, rng: np.random.Generator, state: ChainState, n: int,
-            out: tuple[NDArray, NDArray, NDArray, NDArray, NDArray] | None = None) -> ChainState:
-        """Advance ``n`` iterations in compiled code. ``out`` = (c, w, ll, lp, n_out) draw buffers, filled in place."""
+    def draw_randoms(self, rng: np.random.Generator, n: int) -> tuple[NDArray, ...]:
+        """Per-iteration random numbers: feature choice, move choice, normal, acceptance uniform, parameter normals."""
+        out = (rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n))
+        zt = rng.standard_normal((n, self._pmax())) if self.constraints is not None else np.zeros((n, 1))
+        return out + (zt,)
+
+    def new_buffers(self, n_draws: int) -> tuple[NDArray, ...]:
+        """Draw buffers ``(c, w, theta, ll, lp, n_out)`` for :meth:`run`."""
+        d, P = self.n_features, self.n_params
+        return (np.zeros((n_draws, d), np.int8), np.zeros((n_draws, d)), np.zeros((n_draws, P)), np.zeros(n_draws),
+                np.zeros(n_draws), np.zeros(1, np.int64))
+
+    def run(self, rng: np.random.Generator, state: ChainState, n: int, out: tuple[NDArray, ...] | None = None) -> ChainState:
+        """Advance ``n`` iterations in compiled code; ``out`` (from :meth:`new_buffers`) receives kept draws."""
         s = self.settings
         lik = self.likelihood
-        d = lik.n_features
+        d = self.n_features
         st = _copy_state(state)
-        if out is None:
-            out = (np.zeros((0, d), np.int8), np.zeros((0, d)), np.zeros(0), np.zeros(0), np.zeros(1, np.int64))
-        u_j, u_mv, z, u_acc = self.draw_randoms(rng, n)
+        out = self.new_buffers(0) if out is None else out
+        u_j, u_mv, z, u_acc, zt = self.draw_randoms(rng, n)
         pkind, prm = self._prior_arrays()
+        A = self._param_arrays()
         scal = np.array([st.log_likelihood, st.log_prior])
         map_scal = np.array([st.map_log_posterior, st.map_log_likelihood])
-        ad = st.adapt_stats
-        ad_n, ad_sum, ad_sq, ad_prop, ad_acc = ad[0], ad[1], ad[2], ad[3], ad[4]
+        N = lik.mean_features.shape[0]
         _mcmc.run_chunk(
-            _MODE[s.method], n, st.iteration, s.burn_in_, s.thin_, 500 if s.adapt_ else 0,
-            st.indicators, st.penalty_weights, st.scaled_returns, scal, lik.scaled_features_T, *lik.kernel_args(),
-            u_j, u_mv, z, u_acc, self._cand, s.p_flip, int(s.f_s), s.indicator_prior.log_odds, pkind, prm,
-            st.sigma, st.q_mean, st.q_scale, ad_n, ad_sum, ad_sq, ad_prop, ad_acc,
-            out[0], out[1], out[2], out[3], out[4],
-            st.map_indicators, st.map_penalty_weights, map_scal, st.counts,
-            np.empty(lik.mean_features.shape[0]), np.zeros(d, dtype=np.bool_), np.zeros(d))
+            _MODE[s.method], n, st.iteration, s.burn_in_, s.thin_, 500 if s.adapt_ else 0, self.d_known,
+            st.indicators, st.penalty_weights, st.parameters, st.scaled_returns, scal, st.features_T, lik.beta,
+            *lik.kernel_args(),
+            A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"], A["sorted_vals"], A["states"], A["offsets"],
+            A["inv_len"], A["lo"], A["hi"],
+            u_j, u_mv, z, u_acc, zt, self._cand, s.p_flip, self.p_theta_, int(s.f_s), s.indicator_prior.log_odds,
+            pkind, prm, st.sigma, st.q_mean, st.q_scale, st.sigma_theta, st.q_theta_mean, st.q_theta_scale,
+            st.adapt_stats, st.adapt_theta_stats, *out,
+            st.map_indicators, st.map_penalty_weights, st.map_parameters, map_scal, st.counts,
+            np.empty(N), np.empty(N), np.empty(self.n_params), np.zeros(d, dtype=np.bool_), np.zeros(d))
         return st._replace(log_likelihood=float(scal[0]), log_prior=float(scal[1]), iteration=st.iteration + n,
                            map_log_posterior=float(map_scal[0]), map_log_likelihood=float(map_scal[1]))
 
@@ -285,21 +395,22 @@ class Kernel:
         """One Metropolis-Hastings iteration (pure: ``state`` is not modified)."""
         new = self.run(rng, state, 1)
         dc = new.counts - state.counts
-        move = "flip" if dc[0] else ("weight" if dc[2] else "none")
-        return new, StepInfo(move, bool(dc[1] or dc[3]), new.log_likelihood)
+        move = "flip" if dc[0] else ("weight" if dc[2] else ("parameter" if dc[5] else "none"))
+        return new, StepInfo(move, bool(dc[1] or dc[3] or dc[6]), new.log_likelihood)
 
 
 def _copy_state(s: ChainState) -> ChainState:
     return ChainState(*(x.copy() if isinstance(x, np.ndarray) else x for x in s))
 
 
-def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | None = None, **overrides) -> Kernel:
+def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | None = None, *,
+                 constraints: ConstraintSet | None = None, **overrides) -> Kernel:
     """Bind settings to a likelihood: ``build_kernel(lik, method="bpl", sigma=0.5)``."""
     settings = SamplerSettings() if settings is None else settings
     if overrides:
         settings = replace(settings, **overrides)
-    kernel = Kernel(likelihood, settings)
+    kernel = Kernel(likelihood, settings, constraints)
+    if constraints is not None and constraints.dataset.n_trajectories != likelihood.mean_features.shape[0]:
+        raise ValueError("constraints: built on a dataset with a different number of trajectories than the likelihood")
     kernel._cand  # validate candidates now  # noqa: B018
     return kernel
-
-

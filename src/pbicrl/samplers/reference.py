@@ -34,7 +34,7 @@ def reference_chain(
     indicator_prior: IndicatorPrior | None = None,
 ) -> tuple[NDArray[np.int8], NDArray[np.float64], NDArray[np.float64]]:
     """Run ``len(randoms[0])`` iterations; returns per-iteration (c, w, log-likelihood) after each step."""
-    u_j, u_mv, z, u_acc = randoms
+    u_j, u_mv, z, u_acc = randoms[:4]
     n = u_j.size
     d = lik.n_features
     prior = weight_prior or WeightPrior()
