@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from pbicrl.config import ConfigError, InferConfig
+from pbicrl.constraints import Constraint, ConstraintSet, constraint_from_dict
 from pbicrl.data import Dataset
 from pbicrl.likelihood import PreferenceLikelihood
 from pbicrl.preferences import Margins
@@ -18,23 +19,25 @@ from pbicrl.samplers import SamplerSettings, sample
 __all__ = ["infer", "infer_from_config", "resolve_candidates"]
 
 
-def resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None) -> tuple[int, ...] | None:
-    """Feature names or indices -> indices, with a clear error for unknown ones."""
+def resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None,
+                       constraints: ConstraintSet | None = None) -> tuple[int, ...] | None:
+    """Feature (or parametric constraint) names or indices -> indices, with a clear error for unknown ones."""
     if candidates is None:
         return None
+    names = list(dataset.feature_names) + (list(constraints.names) if constraints is not None else [])
     out = []
     for c in candidates:
         if isinstance(c, (int, np.integer)) and not isinstance(c, bool):
-            if not 0 <= int(c) < dataset.n_features:
-                raise ConfigError(f"candidates: index {c} out of range [0, {dataset.n_features})")
+            if not 0 <= int(c) < len(names):
+                raise ConfigError(f"candidates: index {c} out of range [0, {len(names)})")
             out.append(int(c))
         elif isinstance(c, str):
             if c.isdigit():
                 out.append(int(c))
                 continue
-            if c not in dataset.feature_names:
-                raise ConfigError(f"candidates: unknown feature '{c}'; features are {list(dataset.feature_names)}")
-            out.append(dataset.feature_names.index(c))
+            if c not in names:
+                raise ConfigError(f"candidates: unknown feature '{c}'; features are {names}")
+            out.append(names.index(c))
         else:
             raise ConfigError(f"candidates: expected feature names or indices, got {c!r}")
     if not out:
@@ -64,6 +67,9 @@ def infer(
     weight_prior: WeightPrior | None = None,
     indicator_prior: IndicatorPrior | None = None,
     candidates: Sequence[str | int] | None = None,
+    constraints: Sequence[Constraint | dict] | None = None,
+    sigma_theta: float = 0.5,
+    p_theta: float | None = None,
     progress: bool = True,
 ) -> Posterior:
     """Infer constraints from a grouped dataset.
@@ -87,7 +93,12 @@ def infer(
     weight_prior, indicator_prior
         Priors (default: flat on [-1000, 1000]; Bernoulli(1/2)).
     candidates : names or indices, optional
-        Features that may be constraints.
+        Features that may be constraints (default: all known features; with parametric ``constraints``,
+        only those, as in Algorithm 2).
+    constraints : sequence of Constraint (or dicts for :func:`~pbicrl.constraints.constraint_from_dict`)
+        Parametric constraints over the dataset's states (axis halfspace, halfspace, box, ball).
+    sigma_theta, p_theta
+        Parameter random-walk step and move probability (see :class:`~pbicrl.samplers.SamplerSettings`).
     progress : bool
         Progress bar.
 
@@ -102,14 +113,18 @@ def infer(
             raise ConfigError(f"pairs: expected 'all' or a number of pairs per group pair, got {pairs!r}") from None
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,
                                             nominal_weights=nominal_weights, beta=beta)
+    cset = None
+    if constraints:
+        cset = ConstraintSet(tuple(c if isinstance(c, Constraint) else constraint_from_dict(c) for c in constraints),
+                             dataset)
     settings = SamplerSettings(
         method=method, n_iterations=int(n_iterations), burn_in=burn_in, thin=thin, sigma=sigma, f_s=f_s,
         p_flip=p_flip, init_scale=init_scale,
         weight_prior=weight_prior if weight_prior is not None else WeightPrior(),
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(),
-        candidates=resolve_candidates(dataset, candidates))
+        candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta)
     post = sample(lik, settings, n_chains=n_chains, seed=seed, n_jobs=n_jobs, progress=progress,
-                  feature_names=dataset.feature_names)
+                  feature_names=dataset.feature_names, constraints=cset)
     K = dataset.n_groups
     m = Margins.parse(margins, K)
     post.extra.update({"data": {"n_trajectories": dataset.n_trajectories, "n_features": dataset.n_features,
@@ -127,5 +142,6 @@ def infer_from_config(dataset: Dataset, config: InferConfig, *, progress: bool =
         n_chains=c.chains, seed=c.seed, n_jobs=c.jobs, sigma=c.sigma, f_s=c.f_s, p_flip=c.p_flip,
         init_scale=c.init_scale,
         weight_prior=WeightPrior(c.prior, c.prior_low, c.prior_high, c.prior_mean, c.prior_scale),  # type: ignore[arg-type]
-        indicator_prior=IndicatorPrior(c.indicator_pi), candidates=c.candidates, progress=progress)
+        indicator_prior=IndicatorPrior(c.indicator_pi), candidates=c.candidates, constraints=c.constraints,
+        sigma_theta=c.sigma_theta, p_theta=c.p_theta, progress=progress)
 

@@ -36,6 +36,12 @@ class InferConfig:
         Bernoulli prior probability of each constraint.
     candidates : list of str or int, or None
         Features that may be constraints (names or indices).
+    constraints : list of tables, or None
+        Parametric constraints, in TOML as ``[[constraints]]`` tables:
+        ``family = "axis_halfspace"``, ``dims = [0]``, ``direction = ">="``, ``name = "wall"``,
+        ``bounds = [[0.0, 20.0]]`` (one ``[low, high]`` per parameter; default: the data's range).
+    sigma_theta, p_theta : float
+        Parameter step and parameter-move probability.
     """
 
     nominal_weights: list[float] | None = None
@@ -61,6 +67,9 @@ class InferConfig:
     prior_scale: float = 100.0
     indicator_pi: float = 0.5
     candidates: list | None = None
+    constraints: list | None = None
+    sigma_theta: float = 0.5
+    p_theta: float | None = None
 
     def updated(self, **values: Any) -> "InferConfig":
         """Copy with the non-``None`` values replaced (command-line options over the file)."""
@@ -73,6 +82,7 @@ _TYPES: dict[str, tuple[type, ...]] = {
     "indicator_pi": (int, float), "iterations": (int,), "burn_in": (int,), "thin": (int,), "chains": (int,),
     "seed": (int,), "jobs": (int,), "f_s": (int,), "pairs_seed": (int,), "sampler": (str,), "prior": (str,),
     "pairs": (str, int), "nominal_weights": (list,), "margins": (list,), "candidates": (list,),
+    "constraints": (list,), "sigma_theta": (int, float), "p_theta": (int, float),
 }
 
 
@@ -91,7 +101,7 @@ def load_config(path: str | Path) -> InferConfig:
     known = {f.name for f in fields(InferConfig)}
     values = {}
     for key, value in table.items():
-        if key == "infer" or isinstance(value, dict) and key in ("constraints", "parametric"):
+        if key == "infer":
             continue
         if key not in known:
             raise ConfigError(f"config key '{key}': unknown; known keys are {', '.join(sorted(known))}")
@@ -99,4 +109,11 @@ def load_config(path: str | Path) -> InferConfig:
         if isinstance(value, bool) or not isinstance(value, types):
             raise ConfigError(f"config key '{key}': expected {' or '.join(t.__name__ for t in types)}, got {value!r}")
         values[key] = value
+    if "constraints" in values:
+        from pbicrl.constraints import constraint_from_dict
+
+        for spec in values["constraints"]:
+            if not isinstance(spec, dict):
+                raise ConfigError("config key 'constraints': expected [[constraints]] tables")
+            constraint_from_dict(spec)  # validate now: family, dims, direction, bounds
     return InferConfig(**values)

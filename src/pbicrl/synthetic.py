@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from pbicrl.data import Dataset
 
-__all__ = ["SyntheticProblem", "make_problem"]
+__all__ = ["SyntheticProblem", "make_problem", "make_wall_problem", "make_region_problem"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,3 +168,54 @@ def make_wall_problem(
     ds = Dataset.from_trajectories(feats, group, states=states, feature_names=["forward_displacement", "action_sq_norm"],
                                    nominal_weights=[20.0, -0.1])
     return SyntheticProblem(ds, np.array([20.0, -0.1]), np.zeros(2, dtype=np.int64), np.zeros(2))
+
+
+def make_region_problem(
+    n_per_group: int = 40,
+    *,
+    region: str = "ball",
+    length: int = 40,
+    seed: int | np.random.Generator | None = 0,
+) -> tuple[SyntheticProblem, NDArray[np.float64]]:
+    """2-D straight-ish paths between random points on the edge of [0, 10]^2; group 2 = the path enters a hidden region.
+
+    ``region="ball"``: open disc, centre (5, 5), radius 2 (true parameters ``[5, 5, 2]``);
+    ``region="box"``: closed box [3.5, 6.5] x [4, 6] (true parameters ``[3.5, 4, 6.5, 6]``).
+    Known feature: step length (nominal weight -1). Returns the problem and the true parameters.
+    """
+    rng = np.random.default_rng(seed)
+    if region == "ball":
+        truth = np.array([5.0, 5.0, 2.0])
+
+        def inside(p: NDArray) -> NDArray:
+            return np.sum((p - truth[:2]) ** 2, axis=1) < truth[2] ** 2
+    elif region == "box":
+        truth = np.array([3.5, 4.0, 6.5, 6.0])
+
+        def inside(p: NDArray) -> NDArray:
+            return np.all((p >= truth[:2]) & (p <= truth[2:]), axis=1)
+    else:
+        raise ValueError(f"region: expected 'ball' or 'box', got {region!r}")
+    buckets: list[list[tuple[NDArray, NDArray]]] = [[], []]
+    for _ in range(200 * n_per_group):
+        if min(len(b) for b in buckets) >= n_per_group:
+            break
+        a, b = _perimeter_point(rng), _perimeter_point(rng)
+        if np.linalg.norm(b - a) < 5.0:
+            continue
+        s = np.linspace(0, 1, length)[:, None]
+        pts = a + s * (b - a) + np.cumsum(0.05 * rng.standard_normal((length, 2)), axis=0)
+        g = int(inside(pts).any())
+        if len(buckets[g]) < n_per_group:
+            step = np.r_[0.0, np.linalg.norm(np.diff(pts, axis=0), axis=1)]
+            buckets[g].append((step[:, None], pts))
+    feats = [f for b in buckets for f, _ in b]
+    states = [p for b in buckets for _, p in b]
+    group = np.repeat([1, 2], [len(buckets[0]), len(buckets[1])])
+    ds = Dataset.from_trajectories(feats, group, states=states, feature_names=["step_length"], nominal_weights=[-1.0])
+    return SyntheticProblem(ds, np.array([-1.0]), np.zeros(1, dtype=np.int64), np.zeros(1)), truth
+
+
+def _perimeter_point(rng: np.random.Generator) -> NDArray[np.float64]:
+    u = rng.uniform(0, 10)
+    return [np.array([0.0, u]), np.array([10.0, u]), np.array([u, 0.0]), np.array([u, 10.0])][int(rng.integers(4))]

@@ -63,7 +63,7 @@ def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: n
 
 
 @njit(cache=True, error_model="numpy")
-def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known,
+def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
               c, w, theta, a, scal, FbT, beta,
               brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi,
               fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi,
@@ -76,7 +76,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known,
     """Advance one chain by ``n`` iterations (global iteration numbers ``it0 .. it0+n-1``, 0-based).
 
     ``scal`` = [log-likelihood, log-prior]; ``map_scal`` = [best log-posterior, its log-likelihood];
-    ``n_out`` = [number of stored draws]. Draws are stored after ``burn_in`` every ``thin`` iterations.
+    ``n_out`` = [number of stored draws]. ``naive`` recounts every state for axis halfspaces (benchmark only). Draws are stored after ``burn_in`` every ``thin`` iterations.
     ``ad`` (5, d) and ``adt`` (5, P) are warm-up accumulators (count, sum, sum of squares; proposals, accepts).
     In ``pbicrl`` mode ``memo_ll[j]`` caches the likelihood with feature ``j`` switched off (valid while no
     other component changes); in ``paper`` mode it caches the likelihood of flipping ``j``.
@@ -162,7 +162,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known,
                 if lpw > -np.inf:
                     if j >= d_known:
                         param_column(j - d_known, theta_new, beta, fam, sign, poff, dims_off, dims, sorted_vals,
-                                     states, offsets, inv_len, col_new, False)
+                                     states, offsets, inv_len, col_new, naive)
                     else:
                         for i in range(N):
                             col_new[i] = FbT[j, i]
@@ -257,7 +257,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known,
             if lpt_new > -np.inf:
                 lpt_old = _logprior_theta(theta, p0, p1, tlo, thi, use_prior)
                 param_column(m, theta_new, beta, fam, sign, poff, dims_off, dims, sorted_vals, states, offsets,
-                             inv_len, col_new, False)
+                             inv_len, col_new, naive)
                 if c[j] == 0:
                     # paper mode only: a latent location leaves the likelihood unchanged
                     accepted = True

@@ -86,6 +86,8 @@ class SamplerSettings:
         constraints); ``paper``/``bpl``: at iterations that would step a weight (default 0.5). Algorithm 2
         as printed never proposes :math:`\vartheta` (its ``elsif i mod f_s != 1`` branch is always taken);
         this schedule does.
+    naive_counts : bool
+        Recount every state on a parameter proposal even where a binary search suffices (for benchmarks).
     """
 
     method: Literal["pbicrl", "paper", "bpl"] = "pbicrl"
@@ -102,6 +104,7 @@ class SamplerSettings:
     candidates: tuple[int, ...] | None = None
     sigma_theta: float = 0.5
     p_theta: float | None = None
+    naive_counts: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -379,6 +382,7 @@ class Kernel:
         N = lik.mean_features.shape[0]
         _mcmc.run_chunk(
             _MODE[s.method], n, st.iteration, s.burn_in_, s.thin_, 500 if s.adapt_ else 0, self.d_known,
+            bool(s.naive_counts),
             st.indicators, st.penalty_weights, st.parameters, st.scaled_returns, scal, st.features_T, lik.beta,
             *lik.kernel_args(),
             A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"], A["sorted_vals"], A["states"], A["offsets"],
