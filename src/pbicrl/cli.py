@@ -11,6 +11,8 @@ import json
 import os
 import sys
 from pathlib import Path
+
+import numpy as np
 from typing import Any, Sequence
 
 __all__ = ["main", "build_parser"]
@@ -183,6 +185,60 @@ def _cmd_synthetic(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_tune(sub: Any) -> None:
+    p = sub.add_parser("tune-margins", help="search margins so that group-mean returns show a stated gap relation",
+                       description="Search margins m_kl so that, under the inferred weights, the gaps between "
+                                   "consecutive group-mean returns relate as stated (e.g. --relation 1,4: the G2-G3 gap "
+                                   "is 4 times the G1-G2 gap).")
+    p.add_argument("data", type=Path, help="dataset .npz or shipped dataset name")
+    p.add_argument("--relation", type=_floats, required=True, help="relative sizes of the K-1 consecutive gaps, e.g. 1,4")
+    p.add_argument("--out", type=Path, required=True, help="output directory (tuning.json, summary.json, chains.npz)")
+    p.add_argument("--grid", type=_floats, help="values tried for each consecutive gap (default 0,0.5,1,1.5,2,3,4,6)")
+    p.add_argument("--config", type=Path, help="TOML with the inference settings (as for infer)")
+    p.add_argument("--iterations", type=_positive_int, help="iterations per candidate run (default 50000)")
+    p.add_argument("--chains", type=_positive_int, help="chains per candidate run (default 1)")
+    p.add_argument("--sampler", choices=["pbicrl", "paper", "bpl"])
+    p.add_argument("--seed", type=_nonneg_int)
+    p.add_argument("--estimator", choices=["map", "mean"], default="map", help="weights for the group means (default map)")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_cmd_tune)
+
+
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from pbicrl.api import infer_from_config
+    from pbicrl.config import InferConfig, load_config
+    from pbicrl.data import load_dataset
+    from pbicrl.margins import DEFAULT_GAP_GRID, tune_margins
+    from pbicrl.results import write_run_dir
+
+    cfg = load_config(args.config) if args.config else InferConfig(iterations=50_000, chains=1)
+    cfg = cfg.updated(iterations=args.iterations, chains=args.chains, sampler=args.sampler, seed=args.seed)
+    if args.out.exists() and not args.overwrite and (not args.out.is_dir() or any(args.out.iterdir())):
+        raise FileExistsError(f"--out: {args.out} already exists; choose another directory or pass --overwrite")
+    data = _resolve_data(args.data)
+    ds = load_dataset(data)
+    from dataclasses import replace
+
+    res = tune_margins(ds, args.relation, gap_grid=args.grid or DEFAULT_GAP_GRID, estimator=args.estimator,
+                       progress=not args.no_progress,
+                       run=lambda m: infer_from_config(ds, replace(cfg, margins=m.matrix.tolist()), progress=False))
+    post = res.posterior
+    post.extra.setdefault("data", {})["path"] = str(data)
+    post.extra["margin_tuning"] = res.to_dict()
+    summary = post.summary()
+    arrays = {"indicators": post.indicators, "penalty_weights": post.penalty_weights, "parameters": post.parameters,
+              "log_likelihood": post.log_likelihood}
+    write_run_dir(args.out, {"summary.json": summary, "tuning.json": res.to_dict()}, {"chains.npz": arrays},
+                  overwrite=args.overwrite)
+    print(f"chosen margins: {res.margins.as_dict()}")
+    print(f"gap relation asked {np.round(res.relation_target, 3).tolist()}, achieved "
+          f"{np.round(res.relation_achieved, 3).tolist()} (error {res.error:.4f}; {len(res.table)} candidates)")
+    print(post.table())
+    print(f"wrote {args.out / 'tuning.json'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from pbicrl import __version__
 
@@ -192,6 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_infer(sub)
     _add_info(sub)
     _add_synthetic(sub)
+    _add_tune(sub)
     for mount in _EXTENSIONS:
         try:
             module = __import__(mount, fromlist=["add_subcommands"])
@@ -203,7 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Subcommands contributed by other subpackages; each module exposes add_subcommands(subparsers) and must not
 # import optional dependencies at module level.
-_EXTENSIONS: tuple[str, ...] = ()
+_EXTENSIONS: tuple[str, ...] = ("pbicrl.experiments.sweep",)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
