@@ -84,10 +84,23 @@ class Context:
     executor: Any
     workers: int | None
     progress: bool
+    iterations_override: int | None = None
+    datasets: dict[str, str] | None = None
 
     @property
     def iterations(self) -> int:
+        if self.iterations_override is not None:
+            return int(self.iterations_override)
         return 40_000 if self.quick else PAPER["hyperparameters"]["iterations"]
+
+    def dataset(self, name: str) -> str:
+        """Path of the dataset for ``name`` (a user override, else the shipped one)."""
+        if self.datasets and name in self.datasets:
+            return str(Path(self.datasets[name]).resolve())
+        if not _has_data(name):
+            raise FileNotFoundError(f"the shipped dataset '{name}.npz' is missing; regenerate it with "
+                                    f"'pbicrl envs demos' (see README) or pass --data {name}=PATH")
+        return str(Path(__file__).resolve().parents[1] / "data" / f"{name}.npz")
 
     def pairs(self, n_per_group: int) -> str | int:
         return "all" if self.protocol == "all" else int(n_per_group)
@@ -170,7 +183,7 @@ def exp_grid(ctx: Context) -> Path:
 
         ds = load_dataset(Path(__file__).resolve().parents[1] / "data" / "grid.npz")
     ds.save(path)
-    runs = 20 if ctx.quick else 100
+    runs = 20 if ctx.quick or ctx.iterations_override else 100
     margins = [2.0, 1.0]  # "the margin between tau_1 and tau_2 is about twice that between tau_2 and tau_3"
     configs, names = [], []
     for label, m in (("BPL", None), ("BPL with margins", margins)):
@@ -219,11 +232,9 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     from pbicrl.margins import relation_error, tune_margins
     from pbicrl.preferences import Margins
 
-    if not _has_data(dataset):
-        raise FileNotFoundError(f"reproduce {name}: the shipped dataset '{dataset}.npz' is missing; "
-                                f"regenerate it with 'pbicrl envs demos' (see README)")
+    dataset = ctx.dataset(dataset)
     paper = PAPER[name]
-    full = load_dataset(Path(__file__).resolve().parents[1] / "data" / f"{dataset}.npz")
+    full = load_dataset(dataset)
     n = paper["demos_per_group"]
     true_w = np.array(paper["true_weights"], float)
     wn = np.array(paper["nominal_weights"], float)
@@ -250,7 +261,7 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     res = _run(ctx, configs, names)
     feats = res[0]["feature_names"]
     rows: dict[str, Any] = {}
-    lines = [f"{n} demonstrations per group drawn from the shipped `{dataset}.npz` ({full.group_counts()} available), "
+    lines = [f"{n} demonstrations per group drawn from `{Path(dataset).name}` ({full.group_counts()} available), "
              f"{ctx.seeds} seeds (seed = subsample and chain seed), {ctx.iterations:,} iterations, sigma 0.1, f_s 4, "
              f"protocol: {'all cross-group pairs (paper Eq. 7)' if ctx.protocol == 'all' else f'{n} random pairs per group pair (authors code)'}. "
              f"BPL and PBICRL use the paper's algorithms (3 and 1) with the flat improper prior; the last row uses "
@@ -351,9 +362,7 @@ def _wall_configs(ctx: Context, name: str, dataset: str, n: int, seeds: int) -> 
 def _wall(ctx: Context, name: str, dataset: str) -> Path:
     from pbicrl.metrics import cmse_location
 
-    if not _has_data(dataset):
-        raise FileNotFoundError(f"reproduce {name}: the shipped dataset '{dataset}.npz' is missing; "
-                                f"regenerate it with 'pbicrl envs demos' (see README)")
+    dataset = ctx.dataset(dataset)
     paper = PAPER[name]
     sizes = (20, 50, 100, 200)
     configs, names = [], []
@@ -373,7 +382,7 @@ def _wall(ctx: Context, name: str, dataset: str) -> Path:
     t100 = table[100]
     lines = [f"Axis halfspace x >= theta inferred jointly with its penalty (paper Algorithm 2 with a schedule that "
              f"proposes theta: sigma_1 1.0, sigma_2 0.5, f_s 3), {ctx.iterations:,} iterations, {ctx.seeds} seeds, "
-             f"good vs violating demonstrations from the shipped `{dataset}.npz`; protocol "
+             f"good vs violating demonstrations from `{Path(dataset).name}`; protocol "
              f"{'all pairs' if ctx.protocol == 'all' else 'N random pairs per group pair'}. True wall {paper['wall']}.", "",
              "| | ours | paper PBICRL | paper ICL |", "|---|---|---|---|",
              f"| CMSE (location), 100 per group | {_fmt_ms(*t100['cmse'])} | {_fmt_ms(*paper['cmse'])} | {_fmt_ms(*paper['icl_cmse'])} |",
@@ -405,8 +414,10 @@ def exp_sensitivity(ctx: Context) -> Path:
     lines = []
     results: dict[str, Any] = {}
     for name, dataset in (("point-mass", "point_mass"), ("fetch-reach", "fetch_reach")):
-        if not _has_data(dataset):
-            lines.append(f"- {name}: skipped, shipped dataset '{dataset}.npz' missing")
+        try:
+            dataset = ctx.dataset(dataset)
+        except FileNotFoundError as exc:
+            lines.append(f"- {name}: skipped, {exc}")
             continue
         paper = PAPER[name]
         true_pen = np.array(paper["true_weights"], float) - np.array(paper["nominal_weights"], float)
@@ -441,15 +452,22 @@ EXPERIMENTS: dict[str, Callable[[Context], Path]] = {
 
 
 def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = False, protocol: str = "all",
-              seeds: int = 5, executor: Any = "local", workers: int | None = None, progress: bool = True) -> list[Path]:
-    """Run one experiment (or ``"all"``) and return the report paths."""
+              seeds: int = 5, executor: Any = "local", workers: int | None = None, progress: bool = True,
+              iterations: int | None = None, datasets: dict[str, str] | None = None) -> list[Path]:
+    """Run one experiment (or ``"all"``) and return the report paths.
+
+    ``datasets`` maps a dataset name (``point_mass``, ``fetch_reach``, ``halfcheetah``, ``ant``) to a file to use
+    instead of the shipped one; ``iterations`` overrides the paper's 400,000 (``quick``: 40,000).
+    """
     if protocol not in ("all", "sampled"):
         raise ValueError(f"protocol: expected 'all' or 'sampled', got {protocol!r}")
     names = list(EXPERIMENTS) if experiment == "all" else [experiment]
     for n in names:
         if n not in EXPERIMENTS:
             raise ValueError(f"experiment: unknown {n!r}; choose one of {', '.join(EXPERIMENTS)} or all")
-    ctx = Context(Path(out), quick, protocol, int(seeds), executor, workers, progress)
+    if int(seeds) < 1:
+        raise ValueError(f"seeds: need at least 1, got {seeds}")
+    ctx = Context(Path(out), quick, protocol, int(seeds), executor, workers, progress, iterations, datasets)
     reports = []
     for n in names:
         t0 = time.perf_counter()
@@ -473,6 +491,9 @@ def add_subcommands(sub: Any) -> None:
     p.add_argument("--protocol", choices=["all", "sampled"], default="all",
                    help="all cross-group pairs (paper Eq. 7, default) or N random pairs per group pair (authors' code)")
     p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--iterations", type=int, help="iterations per chain (default: the paper's 400,000)")
+    p.add_argument("--data", action="append", default=[], metavar="NAME=PATH",
+                   help="use PATH instead of the shipped dataset NAME (point_mass, fetch_reach, halfcheetah, ant)")
     p.add_argument("--executor", choices=["local", "serial", "ray"], default="local")
     p.add_argument("--workers", type=int)
     p.add_argument("--no-progress", action="store_true")
@@ -480,6 +501,15 @@ def add_subcommands(sub: Any) -> None:
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    datasets = {}
+    for item in args.data:
+        if "=" not in item:
+            raise ValueError(f"--data: expected NAME=PATH, got {item!r}")
+        k, v = item.split("=", 1)
+        if not Path(v).exists():
+            raise FileNotFoundError(f"--data: {v}: no such file")
+        datasets[k] = v
     reproduce(args.experiment, out=args.out, quick=args.quick, protocol=args.protocol, seeds=args.seeds,
-              executor=args.executor, workers=args.workers, progress=not args.no_progress)
+              executor=args.executor, workers=args.workers, progress=not args.no_progress,
+              iterations=args.iterations, datasets=datasets)
     return 0
