@@ -1,0 +1,673 @@
+"""One run of an experiment as a task: a JSON config in, a results directory out.
+
+A :class:`Task` is a task *kind* (a registered name such as ``"infer"``, or an importable
+``"package.module:function"``) plus a JSON-serialisable config. Its :attr:`Task.config_hash` (SHA-256 of the
+canonical JSON of the format version, the kind and its version, and the config entries that are hashed: not
+the ``unhashed`` keys, not those equal to their default) identifies the run: the
+results live in ``<root>/<name>-<hash[:12]>/`` with a ``result.json`` that records the full hash, so a sweep
+restarted with the same settings recognises finished runs and skips them.
+
+A kind's function has the signature ``run(config: dict, out_dir: Path) -> dict``: it writes whatever files it
+likes into ``out_dir`` (an empty directory that only becomes visible under its final name, together with
+``result.json``, once the function has returned) and returns a small JSON-serialisable dict of headline
+numbers. Functions are named by import path, so workers on other processes or machines import them without
+needing the registry. Registering a new kind::
+
+    from pbicrl.experiments.tasks import register_task
+
+    def run_my_study(config: dict, out_dir: Path) -> dict:   # top level, importable
+        ...
+        return {"score": 0.93}
+
+    register_task("my-study", run_my_study, columns=("score",))
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import socket
+import tempfile
+import time
+import traceback
+from dataclasses import MISSING, dataclass, field, fields
+from importlib import import_module
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+__all__ = [
+    "TASK_FORMAT", "RESULT_FILE", "Task", "TaskKind", "TaskError", "register_task", "get_task_kind",
+    "task_kinds", "canonical_json", "in_task_worker", "task_jobs", "task_worker", "execute_task", "finalize_task",
+    "write_shipped", "find_done", "load_result", "clean_stale_temp_dirs", "run_infer", "prepare_infer", "run_selftest",
+]
+
+TASK_FORMAT = 1
+"""Version of the hashed task description; bump when the meaning of a config changes for every kind."""
+
+RESULT_FILE = "result.json"
+_TMP_PREFIX = ".tmp-"
+_WORKER_ENV = "PBICRL_TASK_WORKER"
+_JOBS_ENV = "PBICRL_TASK_JOBS"
+
+
+class TaskError(ValueError):
+    """Invalid task description (unknown kind, bad config); the message names the key."""
+
+
+# --------------------------------------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class TaskKind:
+    """A registered kind of task.
+
+    Attributes
+    ----------
+    name : str
+        Name used in ``Task.kind`` and in sweep files (``kind = "infer"``).
+    target : str
+        ``"module:function"`` of ``run(config, out_dir) -> dict``; imported by the worker.
+    prepare : callable, optional
+        ``prepare(config) -> config``: validates the config (errors name the key) and may normalise it or
+        fill in defaults; it runs when the :class:`Task` is created (in the parent, before anything is
+        launched) and must be idempotent.
+    unhashed : tuple of str
+        Config keys that do not change the results (e.g. a data path whose content is hashed separately,
+        or a number of worker processes); excluded from the hash.
+    path_keys : tuple of str
+        Config keys that hold file paths; a sweep file resolves them relative to its own directory.
+    columns : tuple of str
+        Keys of the returned dict to show in summary tables (default: every scalar value).
+    defaults : callable, optional
+        ``defaults() -> dict`` of the values a missing key stands for. Entries equal to their default are
+        left out of the hash, so a kind can gain new settings (with defaults that keep the old behaviour)
+        without invalidating finished runs.
+    version : int
+        Part of the hash: bump it when a change makes old results of this kind wrong (e.g. a new default).
+    """
+
+    name: str
+    target: str
+    prepare: Callable[[dict], dict] | None = None
+    unhashed: tuple[str, ...] = ()
+    path_keys: tuple[str, ...] = ()
+    columns: tuple[str, ...] = ()
+    defaults: Callable[[], dict] | None = None
+    version: int = 1
+
+
+_REGISTRY: dict[str, TaskKind] = {}
+
+
+def _target_of(run: Callable[..., Any] | str) -> str:
+    if isinstance(run, str):
+        if ":" not in run:
+            raise TaskError(f"task target {run!r}: expected 'package.module:function'")
+        return run
+    module, qualname = getattr(run, "__module__", None), getattr(run, "__qualname__", "")
+    if not module or "<locals>" in qualname or "<lambda>" in qualname or module == "__main__":
+        raise TaskError(f"task function {qualname or run!r}: must be a top-level function of an importable module "
+                        "(workers import it by name)")
+    return f"{module}:{qualname}"
+
+
+def register_task(name: str, run: Callable[[dict, Path], dict] | str, *, prepare: Callable[[dict], dict] | None = None,
+                  unhashed: Iterable[str] = (), path_keys: Iterable[str] = (), columns: Iterable[str] = (),
+                  defaults: Callable[[], dict] | None = None, version: int = 1, replace: bool = False) -> TaskKind:
+    """Register a task kind (see :class:`TaskKind`); returns it.
+
+    Parameters
+    ----------
+    name : str
+        Kind name; letters, digits, ``-``, ``_`` and ``.``.
+    run : callable or str
+        Top-level function ``run(config, out_dir) -> dict`` or its ``"module:function"`` path.
+    prepare, unhashed, path_keys, columns, defaults, version
+        See :class:`TaskKind`.
+    replace : bool
+        Allow re-registering an existing name with a different target.
+    """
+    if not name or not all(ch.isalnum() or ch in "-_." for ch in name):
+        raise TaskError(f"task kind {name!r}: use letters, digits, '-', '_' and '.'")
+    kind = TaskKind(name, _target_of(run), prepare, tuple(unhashed), tuple(path_keys), tuple(columns), defaults,
+                    int(version))
+    old = _REGISTRY.get(name)
+    if old is not None and old.target != kind.target and not replace:
+        raise TaskError(f"task kind {name!r} is already registered to {old.target}; pass replace=True")
+    _REGISTRY[name] = kind
+    return kind
+
+
+# Kinds defined in modules that are imported only when such a task is requested (keeps `pbicrl` import light).
+_LAZY_KINDS: dict[str, str] = {}
+
+
+def get_task_kind(kind: str) -> TaskKind:
+    """The registered :class:`TaskKind` of ``kind``, or an ad-hoc one for a ``"module:function"`` path."""
+    if kind in _REGISTRY:
+        return _REGISTRY[kind]
+    if kind in _LAZY_KINDS:
+        import_module(_LAZY_KINDS[kind])
+        if kind in _REGISTRY:
+            return _REGISTRY[kind]
+    if ":" in kind:
+        try:  # fail here, before anything is launched, rather than in every worker
+            _import_target(kind)
+        except (ImportError, AttributeError, ValueError) as exc:
+            raise TaskError(f"kind: cannot import {kind!r} ({type(exc).__name__}: {exc})") from None
+        return TaskKind(kind, kind)
+    known = ", ".join(sorted(set(_REGISTRY) | set(_LAZY_KINDS)))
+    raise TaskError(f"kind: unknown task kind {kind!r}; known kinds are {known} "
+                    "(or give an importable 'package.module:function')")
+
+
+def task_kinds() -> list[str]:
+    """Names of all registered task kinds."""
+    return sorted(set(_REGISTRY) | set(_LAZY_KINDS))
+
+
+# --------------------------------------------------------------------------------------------- the task
+def _plain(value: Any, where: str) -> Any:
+    """JSON-ready copy: numpy scalars/arrays -> Python, tuples -> lists, paths -> str; anything else is an error."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, int):
+        return int(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise TaskError(f"{where}: {value} is not a finite number")
+        return float(value)
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise TaskError(f"{where}: keys must be strings, got {k!r}")
+            out[k] = _plain(v, f"{where}.{k}" if where else k)
+        return out
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if hasattr(value, "tolist") and hasattr(value, "dtype"):  # numpy scalar or array, without importing numpy
+        return _plain(value.tolist(), where)
+    raise TaskError(f"{where or 'config'}: {type(value).__name__} is not JSON-serialisable")
+
+
+def _integral(value: Any) -> Any:
+    if isinstance(value, float) and value.is_integer() and abs(value) < 2**53:
+        return int(value)
+    if isinstance(value, dict):
+        return {k: _integral(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_integral(v) for v in value]
+    return value
+
+
+def canonical_json(value: Any) -> str:
+    """Canonical JSON (sorted keys, no spaces, ASCII) of a JSON-ready value; the input of the task hash.
+
+    Whole floats are written as integers, so ``margins = [0, 1]`` and ``[0.0, 1.0]`` are the same run.
+    """
+    return json.dumps(_integral(_plain(value, "")), sort_keys=True, separators=(",", ":"), ensure_ascii=True,
+                      allow_nan=False)
+
+
+def _safe_name(name: str) -> str:
+    out = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name).strip("._") or "task"
+    return out[:80]
+
+
+@dataclass(frozen=True, eq=False)
+class Task:
+    """One run: a task kind and its config.
+
+    The config is validated and normalised by the kind's ``prepare`` when the task is created, so
+    ``Task("infer", {"data": "example"})`` and a config that spells out every default are the same run.
+
+    Parameters
+    ----------
+    kind : str
+        Registered kind (:func:`task_kinds`) or ``"package.module:function"``.
+    config : dict
+        JSON-serialisable settings.
+    name : str, optional
+        Readable prefix of the output directory (default: the kind); not part of the hash.
+    """
+
+    kind: str
+    config: dict = field(default_factory=dict)
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.kind, str) or not self.kind:
+            raise TaskError(f"kind: expected a task kind name, got {self.kind!r}")
+        if not isinstance(self.config, Mapping):
+            raise TaskError(f"config: expected a table of settings, got {type(self.config).__name__}")
+        if self.name is not None and not isinstance(self.name, str):
+            raise TaskError(f"name: expected a string, got {self.name!r}")
+        spec = get_task_kind(self.kind)
+        config = _plain(dict(self.config), "")
+        if spec.prepare is not None:
+            config = _plain(spec.prepare(config), "")
+        object.__setattr__(self, "config", config)
+        # Computed here and carried along (pickled with the task): workers need neither the registry nor `prepare`.
+        unhashed = set(spec.unhashed)
+        defaults = _plain(spec.defaults(), "defaults") if spec.defaults is not None else {}
+        hashed = {k: v for k, v in config.items()
+                  if k not in unhashed and not (k in defaults and canonical_json(v) == canonical_json(defaults[k]))}
+        text = canonical_json({"format": TASK_FORMAT, "kind": self.kind, "version": spec.version, "config": hashed})
+        object.__setattr__(self, "_hash", hashlib.sha256(text.encode()).hexdigest())
+        object.__setattr__(self, "_target", spec.target)
+
+    @property
+    def spec(self) -> TaskKind:
+        """The :class:`TaskKind` (looked up in the registry of this process)."""
+        return get_task_kind(self.kind)
+
+    @property
+    def target(self) -> str:
+        """``"module:function"`` that runs the task."""
+        return self._target  # type: ignore[attr-defined]
+
+    @property
+    def config_hash(self) -> str:
+        """SHA-256 (hex) of the canonical JSON of format and kind versions, kind, and the hashed config entries."""
+        return self._hash  # type: ignore[attr-defined]
+
+    @property
+    def dir_name(self) -> str:
+        """``<name or kind>-<hash[:12]>``."""
+        return f"{_safe_name(self.name or self.kind.rsplit(':', 1)[-1])}-{self.config_hash[:12]}"
+
+    def out_dir(self, root: str | os.PathLike[str]) -> Path:
+        """The results directory of this task under ``root``."""
+        return Path(root) / self.dir_name
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Task) and other.config_hash == self.config_hash
+
+    def __hash__(self) -> int:
+        return hash(self.config_hash)
+
+    def __repr__(self) -> str:
+        return f"Task({self.kind!r}, {self.dir_name})"
+
+
+# --------------------------------------------------------------------------------------------- results on disk
+def _read_result(directory: Path) -> dict | None:
+    try:
+        return json.loads((directory / RESULT_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def find_done(task: Task, root: str | os.PathLike[str]) -> Path | None:
+    """The finished results directory of ``task`` under ``root`` (any name ending in its hash), or None.
+
+    A run is finished iff its directory holds a ``result.json`` that records the same full config hash.
+    """
+    root = Path(root)
+    first = task.out_dir(root)
+    candidates = [first] + sorted(p for p in root.glob(f"*-{task.config_hash[:12]}") if p != first) if root.is_dir() else []
+    for d in candidates:
+        if d.name.startswith(".") or not d.is_dir():
+            continue
+        rec = _read_result(d)
+        if rec is not None and rec.get("config_hash") == task.config_hash:
+            return d
+    return None
+
+
+def load_result(task: Task, root: str | os.PathLike[str]) -> dict | None:
+    """The ``result.json`` record of a finished task (``record["result"]`` is what its function returned)."""
+    d = find_done(task, root)
+    return None if d is None else _read_result(d)
+
+
+def _host() -> str:
+    return _safe_name(socket.gethostname()).replace(".", "_")[:40]
+
+
+def _make_temp_dir(root: Path, task: Task) -> Path:
+    """A private directory ``.tmp-<hash12>.<host>.<pid>.<random>`` in ``root`` (so stale ones can be recognised)."""
+    root.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f"{_TMP_PREFIX}{task.config_hash[:12]}.{_host()}.{os.getpid()}.", dir=root))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:  # a killed process stays a zombie until its new parent reaps it
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return stat[stat.rindex(")") + 2] not in "ZX"
+    except (OSError, ValueError, IndexError):
+        return True
+
+
+def clean_stale_temp_dirs(root: str | os.PathLike[str]) -> list[Path]:
+    """Remove temporary run directories left in ``root`` by killed processes of this host; returns them.
+
+    Directories of processes that are still alive (a concurrent sweep) and of other hosts are kept.
+    """
+    root = Path(root)
+    removed: list[Path] = []
+    if not root.is_dir():
+        return removed
+    host = _host()
+    for p in root.glob(f"{_TMP_PREFIX}*"):
+        parts = p.name[len(_TMP_PREFIX):].split(".")
+        if len(parts) < 4 or parts[1] != host or not parts[2].isdigit():
+            continue
+        if not _pid_alive(int(parts[2])):
+            shutil.rmtree(p, ignore_errors=True)
+            removed.append(p)
+    return removed
+
+
+def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s: float, force: bool = False) -> Path:
+    """Write ``result.json`` into ``work/run`` and rename it to the task's directory (the atomic step).
+
+    If a finished directory with the same hash appeared meanwhile (a concurrent or orphaned worker) it is
+    kept and this copy discarded, unless ``force``.
+    """
+    run_dir = work / "run"
+    record = {
+        "format": TASK_FORMAT, "kind": task.kind, "target": task.target, "name": task.name,
+        "config_hash": task.config_hash, "config": task.config, "result": _plain(result, "result"),
+        "runtime_s": float(runtime_s), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "host": socket.gethostname(),
+    }
+    with open(run_dir / RESULT_FILE, "w") as fh:
+        fh.write(json.dumps(record, indent=2) + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(run_dir, 0o777 & ~mask)  # mkdtemp makes 0700; the results should be as readable as any new directory
+    final = task.out_dir(root)
+    if final.exists():
+        rec = _read_result(final)
+        if rec is not None and rec.get("config_hash") == task.config_hash and not force:
+            shutil.rmtree(work, ignore_errors=True)
+            return final
+        os.replace(final, work / "old")  # stale or forced: move aside first, then the new one takes its place
+    try:
+        os.replace(run_dir, final)
+    except OSError:
+        # Another process finished the same run between the check above and the rename: keep its copy.
+        rec = _read_result(final)
+        if rec is None or rec.get("config_hash") != task.config_hash:
+            raise
+    shutil.rmtree(work, ignore_errors=True)
+    return final
+
+
+def in_task_worker() -> bool:
+    """True inside a task run by an executor: the executor owns the cores, so nested parallelism (MCMC
+    chains, torch threads) must use no more than :func:`task_jobs` processes or threads."""
+    return os.environ.get(_WORKER_ENV) == "1"
+
+
+def task_jobs() -> int:
+    """Processes (or threads) a task may use for its own parallel work: 1, unless the executor has more
+    cores than tasks (then its share of them). Results must not depend on it."""
+    try:
+        return max(1, int(os.environ.get(_JOBS_ENV, "1")))
+    except ValueError:
+        return 1
+
+
+class task_worker:
+    """Context manager that marks the current process as a task worker with ``jobs`` cores (see
+    :func:`in_task_worker`, :func:`task_jobs`)."""
+
+    def __init__(self, jobs: int = 1) -> None:
+        self.jobs = max(1, int(jobs))
+
+    def __enter__(self) -> "task_worker":
+        self._old = {k: os.environ.get(k) for k in (_WORKER_ENV, _JOBS_ENV)}
+        os.environ[_WORKER_ENV] = "1"
+        os.environ[_JOBS_ENV] = str(self.jobs)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for k, v in self._old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _import_target(target: str) -> Callable[[dict, Path], Any]:
+    module, _, qualname = target.partition(":")
+    obj: Any = import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def _outcome(task: Task, status: str, *, out_dir: Path | None = None, result: Any = None, error: str | None = None,
+             tb: str | None = None, runtime_s: float = 0.0) -> dict[str, Any]:
+    return {"config_hash": task.config_hash, "status": status, "out_dir": None if out_dir is None else str(out_dir),
+            "result": result, "error": error, "traceback": tb, "runtime_s": runtime_s}
+
+
+def _error_text(exc: BaseException) -> str:
+    msg = str(exc).strip()
+    return f"{type(exc).__name__}: {msg.splitlines()[0]}" if msg else type(exc).__name__
+
+
+def execute_task(task: Task, root: str | os.PathLike[str] | None, *, force: bool = False, jobs: int = 1
+                 ) -> dict[str, Any]:
+    """Run one task in this process, as a worker with ``jobs`` cores; never raises for a failing task.
+
+    With ``root`` the results directory is created under it atomically; with ``root=None`` the task runs in a
+    local temporary directory and the outcome carries its files as ``outcome["files"]`` (relative path ->
+    bytes) for the caller to write with :func:`write_shipped` (executors whose workers cannot see ``root``).
+
+    Returns
+    -------
+    dict
+        ``status`` ("ran" or "failed"), ``result``, ``error`` and ``traceback``, ``runtime_s``, ``out_dir``.
+    """
+    t0 = time.perf_counter()
+    ship = root is None
+    work = Path(tempfile.mkdtemp(prefix="pbicrl-task-")) if ship else _make_temp_dir(Path(root), task)  # type: ignore[arg-type]
+    try:
+        (work / "run").mkdir()
+        with task_worker(jobs):
+            fn = _import_target(task.target)
+            result = fn(dict(task.config), work / "run")
+        result = _plain(result if result is not None else {}, "result")
+        runtime = time.perf_counter() - t0
+        if ship:
+            files = {str(p.relative_to(work / "run")): p.read_bytes()
+                     for p in sorted((work / "run").rglob("*")) if p.is_file()}
+            out = _outcome(task, "ran", result=result, runtime_s=runtime)
+            out["files"] = files
+            return out
+        final = finalize_task(task, Path(root), work, result, runtime_s=runtime, force=force)  # type: ignore[arg-type]
+        return _outcome(task, "ran", out_dir=final, result=result, runtime_s=runtime)
+    except Exception as exc:  # a failing run is reported, not raised: the sweep goes on
+        return _outcome(task, "failed", error=_error_text(exc), tb=traceback.format_exc(),
+                        runtime_s=time.perf_counter() - t0)
+    finally:
+        if work.exists():
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def write_shipped(task: Task, root: str | os.PathLike[str], outcome: dict[str, Any], *, force: bool = False) -> dict[str, Any]:
+    """Write the files a shipped outcome carries (see :func:`execute_task`) under ``root``, atomically."""
+    files = outcome.pop("files", {})
+    if outcome["status"] != "ran":
+        return outcome
+    work = _make_temp_dir(Path(root), task)
+    try:
+        run_dir = work / "run"
+        for rel, data in files.items():
+            path = run_dir / rel
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        run_dir.mkdir(exist_ok=True)
+        outcome["out_dir"] = str(finalize_task(task, Path(root), work, outcome["result"],
+                                               runtime_s=outcome["runtime_s"], force=force))
+    finally:
+        if work.exists():
+            shutil.rmtree(work, ignore_errors=True)
+    return outcome
+
+
+# --------------------------------------------------------------------------------------------- kind "infer"
+_SHIPPED_SUFFIX = ".npz"
+_sha_cache: dict[tuple[str, int, int], str] = {}
+
+
+def _resolve_data(data: str) -> Path:
+    p = Path(data).expanduser()
+    if p.exists():
+        return p
+    from importlib import resources
+
+    name = p.name if p.suffix == _SHIPPED_SUFFIX else f"{p.name}{_SHIPPED_SUFFIX}"
+    shipped = resources.files("pbicrl") / "data" / name
+    if str(p.parent) in ("", ".") and shipped.is_file():
+        return Path(str(shipped))
+    raise TaskError(f"data: {data}: no such file (and no shipped dataset of that name)")
+
+
+def _file_sha256(path: Path) -> str:
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _sha_cache:
+        h = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        _sha_cache[key] = h.hexdigest()
+    return _sha_cache[key]
+
+
+def _infer_fields() -> dict[str, Any]:
+    from pbicrl.config import InferConfig
+
+    out = {}
+    for f in fields(InferConfig):
+        out[f.name] = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+    return out
+
+
+_INFER_EXTRA = {"demos_per_group": None, "demos_seed": 0}
+
+
+def prepare_infer(config: dict) -> dict:
+    """Validate an ``infer`` config and fill in every default (so that equivalent configs hash alike).
+
+    Keys: ``data`` (a dataset .npz or the name of a shipped dataset), every :class:`~pbicrl.config.InferConfig`
+    field, ``demos_per_group`` (subsample that many demonstrations per group, default all) and ``demos_seed``.
+    The dataset's content is hashed (``data_sha256``); its path is not, so moving files keeps finished runs.
+    """
+    from pbicrl import config as config_mod
+
+    defaults = _infer_fields()
+    types = getattr(config_mod, "_TYPES", {})
+    config = dict(config)
+    if "data" not in config:
+        raise TaskError("data: missing; give a dataset .npz path or the name of a shipped dataset")
+    if not isinstance(config["data"], str):
+        raise TaskError(f"data: expected a path or a dataset name, got {config['data']!r}")
+    path = _resolve_data(config["data"])
+    # An existing file is stored by absolute path (workers may start elsewhere); shipped datasets by name.
+    data = config.pop("data")
+    out: dict[str, Any] = {"data": str(path.resolve()) if Path(data).expanduser().exists() else data,
+                           "data_sha256": _file_sha256(path)}
+    config.pop("data_sha256", None)
+    for key, value in config.items():
+        if key in _INFER_EXTRA:
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "demos_per_group" else 0)):
+                raise TaskError(f"{key}: expected a {'positive' if key == 'demos_per_group' else 'non-negative'} integer, got {value!r}")
+            continue
+        if key not in defaults:
+            known = ", ".join(sorted({"data", *defaults, *_INFER_EXTRA}))
+            raise TaskError(f"infer config key '{key}': unknown; known keys are {known}")
+        expected = types.get(key)
+        if value is not None and expected and (isinstance(value, bool) or not isinstance(value, expected)):
+            raise TaskError(f"infer config key '{key}': expected {' or '.join(t.__name__ for t in expected)}, got {value!r}")
+    out.update(defaults | _INFER_EXTRA | config)
+    return out
+
+
+def run_infer(config: dict, out_dir: Path) -> dict[str, Any]:
+    """Task kind ``infer``: :func:`pbicrl.api.infer_from_config` on a dataset; writes summary.json + chains.npz.
+
+    Inside an executor the chains use :func:`task_jobs` processes (usually 1: the executor already uses
+    every core); the draws do not depend on it. Returns the headline numbers (per feature, in ``features``
+    order).
+    """
+    from dataclasses import replace
+
+    from pbicrl.api import infer_from_config
+    from pbicrl.config import InferConfig
+    from pbicrl.data import load_dataset
+
+    path = _resolve_data(config["data"])
+    digest = _file_sha256(path)
+    if config.get("data_sha256") not in (None, digest):
+        raise TaskError(f"data: {path} changed since the task was created (content hash differs)")
+    ds = load_dataset(path)
+    if config.get("demos_per_group") is not None:
+        ds = ds.sample_per_group(int(config["demos_per_group"]), seed=int(config.get("demos_seed", 0)))
+    cfg = InferConfig(**{k: config[k] for k in _infer_fields() if k in config})
+    if in_task_worker():
+        cfg = replace(cfg, jobs=task_jobs())
+    post = infer_from_config(ds, cfg, progress=False)
+    post.extra["data"]["path"] = str(path)
+    post.extra["data"]["sha256"] = digest
+    post.save(out_dir, overwrite=True)
+    rhat = [r for r in post.rhat()["effective_penalty"] if math.isfinite(r)]
+    return {
+        "features": list(post.feature_names),
+        "p_constraint": [round(float(x), 6) for x in post.p_constraint],
+        "map_effective_penalty": [float(x) for x in post.map_effective_penalty],
+        "mean_effective_penalty": [float(x) for x in post.mean_effective_penalty],
+        "map_log_posterior": float(post.map_log_posterior),
+        "max_rhat": max(rhat) if rhat else None,
+        "acceptance": float(post.acceptance_rate()["overall"]),
+    }
+
+
+def _infer_defaults() -> dict[str, Any]:
+    return _infer_fields() | _INFER_EXTRA
+
+
+register_task("infer", run_infer, prepare=prepare_infer, unhashed=("data", "jobs"), path_keys=("data",),
+              columns=("p_constraint", "map_effective_penalty", "max_rhat"), defaults=_infer_defaults)
+
+
+# --------------------------------------------------------------------------------------------- kind "selftest"
+def run_selftest(config: dict, out_dir: Path) -> dict[str, Any]:
+    """Task kind ``selftest``: checks an executor without heavy work.
+
+    Config: ``value`` (any JSON, echoed back), ``sleep`` (seconds, default 0), ``fail`` (raise with this
+    message if set), ``crash`` (end the worker process abruptly, as a crash or an out-of-memory kill would;
+    only in a child process). Writes ``value.json`` and returns ``{"value": ..., "in_worker": ...}``.
+    """
+    if config.get("sleep"):
+        time.sleep(float(config["sleep"]))
+    if config.get("fail"):
+        raise RuntimeError(str(config["fail"]))
+    if config.get("crash"):
+        import multiprocessing
+
+        if multiprocessing.parent_process() is None:
+            raise RuntimeError("crash: only simulated in a pool worker process")
+        os._exit(70)
+    (out_dir / "value.json").write_text(json.dumps(config.get("value")) + "\n")
+    return {"value": config.get("value"), "in_worker": in_task_worker()}
+
+
+register_task("selftest", run_selftest)
