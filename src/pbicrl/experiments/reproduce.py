@@ -106,11 +106,22 @@ class Context:
         return "all" if self.protocol == "all" else int(n_per_group)
 
 
+def _prepare_unit(config: dict) -> dict:
+    """Hash the dataset's content, not its path: moving the checkout does not invalidate finished runs."""
+    from pbicrl.cli import _resolve_data
+    from pbicrl.experiments.tasks import _file_sha256
+
+    config = dict(config)
+    config["dataset_sha256"] = _file_sha256(_resolve_data(Path(config["dataset"])))
+    return config
+
+
 def _run(ctx: Context, configs: list[dict], names: list[str]) -> list[dict]:
     from pbicrl.experiments.sweep import run_tasks
-    from pbicrl.experiments.tasks import Task
+    from pbicrl.experiments.tasks import Task, register_task
 
-    tasks = [Task("pbicrl.experiments.reproduce:run_unit", c, name=n) for c, n in zip(configs, names)]
+    register_task("reproduce-run", run_unit, prepare=_prepare_unit, unhashed=("dataset", "label"), replace=True)
+    tasks = [Task("reproduce-run", c, name=n) for c, n in zip(configs, names)]
     res = run_tasks(tasks, ctx.out / "runs", ctx.executor, workers=ctx.workers, progress=ctx.progress, manifest=False)
     out = []
     for r in res.records:
