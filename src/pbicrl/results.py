@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
+    from pbicrl.diagnostics import Diagnostics
     from pbicrl.samplers.kernels import Kernel
 
 __all__ = ["Posterior", "split_rhat", "write_run_dir"]
@@ -246,12 +247,20 @@ class Posterior:
                     out.append(f"{name}: {near:.0%} of active draws lie within 5% of the prior bound [{lo:g}, {hi:g}]; "
                                "the groups are (nearly) separated by this feature, so the data only bound the penalty's "
                                "magnitude from one side. Narrow the prior bounds or use margins to set the scale.")
-        for key, vals in self.rhat().items():
-            for name, r in zip(self.feature_names, vals):
-                if np.isfinite(r) and r > 1.01:
-                    out.append(f"{name}: split R-hat of the {key.replace('_', ' ')} is {r:.3f} > 1.01; chains disagree, "
-                               "run longer or check multimodality")
+        out.extend(self.diagnostics().warnings())  # R-hat > 1.01, bulk ESS < 400
         return out
+
+    def diagnostics(self) -> "Diagnostics":
+        """R-hat and bulk/tail ESS of every penalty, indicator and parameter (:mod:`pbicrl.diagnostics`)."""
+        from pbicrl import diagnostics
+
+        return diagnostics.compute(self)
+
+    def to_arviz(self) -> Any:
+        """ArviZ InferenceData (arviz < 1) or DataTree (arviz >= 1); see :mod:`pbicrl.export`."""
+        from pbicrl.export import to_arviz
+
+        return to_arviz(self)
 
     def summary(self) -> dict[str, Any]:
         """Everything ``summary.json`` holds."""
@@ -278,6 +287,7 @@ class Posterior:
                 "ci90": {n: [_py(a), _py(b)] for n, (a, b) in zip(names, self.ci(0.9))},
                 "penalty_given_active": {"mean": by_name(cmean), "ci90": {n: [_py(a), _py(b)] for n, (a, b) in zip(names, cci)}},
                 "rhat": {k: by_name(np.array(v)) for k, v in self.rhat().items()},
+                "diagnostics": self.diagnostics().to_dict(),
                 "parameters": self.parameter_summary(),
             },
             "acceptance_rate": self.acceptance_rate(),
@@ -299,25 +309,27 @@ class Posterior:
         names = list(self.feature_names)
         w = max(8, max(len(n) for n in names))
         ci = self.ci(0.9)
-        rh = self.rhat()["effective_penalty"]
-        head = f"{'feature':<{w}}  {'P(c=1)':>7}  {'MAP c':>5}  {'MAP c*w_p':>10}  {'mean c*w_p':>10}  {'90% interval':>22}  {'R-hat':>6}"
+        diag = self.diagnostics()
+        head = (f"{'feature':<{w}}  {'P(c=1)':>7}  {'MAP c':>5}  {'MAP c*w_p':>10}  {'mean c*w_p':>10}  "
+                f"{'90% interval':>22}  {'R-hat':>6}  {'ESS bulk':>8}  {'ESS tail':>8}")
         lines = [head, "-" * len(head)]
         for j, n in enumerate(names):
             lines.append(f"{n:<{w}}  {self.p_constraint[j]:7.3f}  {int(self.map_indicators[j]):5d}  "
                          f"{self.map_effective_penalty[j]:10.4g}  {self.mean_effective_penalty[j]:10.4g}  "
-                         f"[{ci[j, 0]:9.4g}, {ci[j, 1]:9.4g}]  {rh[j]:6.3f}")
+                         f"[{ci[j, 0]:9.4g}, {ci[j, 1]:9.4g}]  {diag.cells('feature', n)}")
         if self.parameter_names:
             pw = max(10, max(len(n) for n in self.parameter_names))
             lines.append("")
-            lines.append(f"{'parameter':<{pw}}  {'MAP':>10}  {'mean':>10}  {'90% interval':>22}")
+            lines.append(f"{'parameter':<{pw}}  {'MAP':>10}  {'mean':>10}  {'90% interval':>22}  {'R-hat':>6}  {'ESS bulk':>8}  {'ESS tail':>8}")
             mp = self.map_parameters_active
             for k, (n, v) in enumerate(self.parameter_summary().items()):
                 lo, hi = (v["ci90"][0], v["ci90"][1]) if v["mean"] is not None else (np.nan, np.nan)
                 mean = np.nan if v["mean"] is None else v["mean"]
-                lines.append(f"{n:<{pw}}  {mp[k]:10.4g}  {mean:10.4g}  [{lo:9.4g}, {hi:9.4g}]")
+                lines.append(f"{n:<{pw}}  {mp[k]:10.4g}  {mean:10.4g}  [{lo:9.4g}, {hi:9.4g}]  {diag.cells('parameter', n)}")
         acc = ", ".join(f"{k} {v:.1%}" for k, v in self.acceptance_rate().items())
         lines.append(f"method {self.method}; {self.n_chains} chains x {self.settings['iterations']:,} iterations "
                      f"({self.n_draws} kept each); acceptance {acc}; {self.runtime_s:.2f} s")
+        lines.append(diag.footer())
         for msg in self.warnings():
             lines.append(f"warning: {msg}")
         return "\n".join(lines)

@@ -1,0 +1,192 @@
+"""Subcommands for using a posterior and bringing data in, mounted into ``pbicrl`` (see :mod:`pbicrl.cli`):
+
+``pbicrl diagnose RUN_DIR``   R-hat and bulk / tail ESS of every penalty, indicator and parameter
+``pbicrl plot RUN_DIR``       traces, posterior densities, P(constraint), penalty-vs-location pairs, MAP rewards
+``pbicrl export RUN_DIR``     ArviZ InferenceData / DataTree as NetCDF
+``pbicrl import csv|parquet|minari``  a table or a Minari dataset -> a dataset ``.npz``
+
+Optional dependencies (ArviZ, matplotlib, pyarrow, minari) are imported only when a command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+__all__ = ["add_subcommands"]
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(x) for x in text.replace(",", " ").split()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return n
+
+
+# ---------------------------------------------------------------------------------------------- diagnose
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from pbicrl import diagnostics
+    from pbicrl.runs import load_run
+
+    run = load_run(args.run)
+    diag = diagnostics.compute(run, backend="arviz" if args.require_arviz else "auto")
+    if args.json:
+        print(json.dumps(diag.to_dict(), indent=2))
+    else:
+        print(diag.table())
+        for msg in diag.warnings():
+            print(f"warning: {msg}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------- plot
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from pbicrl.plots import parse_truth, plot_run
+    from pbicrl.runs import load_run
+
+    run = load_run(args.run)
+    truth = parse_truth(args.truth, run.feature_names)
+    if args.data is not None and not args.data.is_file():
+        raise FileNotFoundError(f"--data: {args.data}: no such file")
+    files = plot_run(run, args.out, dataset=args.data, truth=truth, fmt=args.format, dpi=args.dpi)
+    for f in files:
+        print(f"wrote {f}")
+    if not any(f.stem == "rewards" for f in files):
+        print("note: no rewards plot (the run's dataset was not found; pass --data DATA.npz)")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------- export
+def _cmd_export(args: argparse.Namespace) -> int:
+    from pbicrl.export import to_netcdf
+    from pbicrl.runs import load_run
+
+    run = load_run(args.run)
+    out = args.netcdf if args.netcdf is not None else Path(args.run) / "posterior.nc"
+    path = to_netcdf(run, out, overwrite=args.overwrite)
+    print(f"wrote {path}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------- import
+def _check_out(out: Path, overwrite: bool) -> None:
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"--out: {out} already exists; choose another file or pass --overwrite")
+    if out.suffix != ".npz":
+        raise ValueError(f"--out: expected a .npz file name, got {out}")
+
+
+def _cmd_import_table(args: argparse.Namespace) -> int:
+    from pbicrl.io import read_table
+
+    _check_out(args.out, args.overwrite)
+    fmt = args.format
+    kwargs: dict[str, Any] = {}
+    if fmt in ("csv", "tsv") and args.delimiter is not None:
+        kwargs["delimiter"] = args.delimiter
+    ds = read_table(args.file, format=fmt, id_col=args.id_col, group_col=args.group_col,
+                    feature_cols=args.feature_cols, state_cols=args.state_cols, action_cols=args.action_cols,
+                    step_col=args.step_col, nominal_weights=args.nominal_weights, **kwargs)
+    ds.save(args.out)
+    print(f"wrote {args.out}: {ds}")
+    return 0
+
+
+def _cmd_import_minari(args: argparse.Namespace) -> int:
+    from pbicrl.io import from_minari, load_feature_function
+
+    _check_out(args.out, args.overwrite)
+    fn = load_feature_function(args.features) if args.features else None
+    groups: Any = None
+    if args.groups:
+        gp = Path(args.groups)
+        if gp.suffix == ".json":
+            if not gp.is_file():
+                raise FileNotFoundError(f"--groups: {gp}: no such file")
+            try:
+                groups = json.loads(gp.read_text())
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"--groups: {gp} is not valid JSON ({exc})") from None
+            if isinstance(groups, dict):
+                groups = {str(k): v for k, v in groups.items()}
+        else:
+            groups = load_feature_function(args.groups)
+    names = [c.strip() for c in args.feature_names.split(",")] if args.feature_names else None
+    ds = from_minari(args.dataset_id, fn, groups=groups, root=args.root, feature_names=names,
+                     nominal_weights=args.nominal_weights, states=not args.no_states)
+    ds.save(args.out)
+    print(f"wrote {args.out}: {ds}")
+    return 0
+
+
+def add_subcommands(sub: Any) -> None:
+    """Add ``diagnose``, ``plot``, ``export`` and ``import`` to a subparsers object."""
+    p = sub.add_parser("diagnose", help="R-hat and ESS of a run (pbicrl infer --out DIR)",
+                       description="Convergence diagnostics of every penalty, indicator and parameter of a run.")
+    p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--require-arviz", action="store_true", help="fail instead of falling back without ArviZ")
+    p.set_defaults(func=_cmd_diagnose)
+
+    p = sub.add_parser("plot", help="figures of a run: traces, densities, P(constraint), pairs, rewards",
+                       description="Write trace.png, posterior.png, p_constraint.png, pairs.png (parametric "
+                                   "constraints) and rewards.png (when the dataset is known) for a run.")
+    p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
+    p.add_argument("--data", type=Path, help="dataset .npz for the rewards plot (default: the one the run used)")
+    p.add_argument("--truth", help="true penalties/parameters: 'name=value,...', one value per feature, or a JSON file")
+    p.add_argument("--out", type=Path, help="output directory (default RUN_DIR/plots)")
+    p.add_argument("--format", choices=["png", "pdf", "svg"], default="png")
+    p.add_argument("--dpi", type=_positive_int, default=110)
+    p.set_defaults(func=_cmd_plot)
+
+    p = sub.add_parser("export", help="export a run to ArviZ NetCDF",
+                       description="Write the posterior as ArviZ InferenceData (arviz < 1) or DataTree (arviz >= 1) "
+                                   "in NetCDF; variables indicator, penalty, penalty_weight, parameter, "
+                                   "log-likelihood, with the feature names as coordinates.")
+    p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
+    p.add_argument("--netcdf", type=Path, help="output .nc file (default RUN_DIR/posterior.nc)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser("import", help="convert a CSV / Parquet table or a Minari dataset to a dataset .npz")
+    isub = p.add_subparsers(dest="import_kind", required=True, metavar="SOURCE")
+    for kind in ("csv", "parquet"):
+        q = isub.add_parser(kind, help=f"one row per state: trajectory id, group, features ({kind})")
+        q.add_argument("file", type=Path)
+        q.add_argument("--out", type=Path, required=True, help="output dataset .npz")
+        q.add_argument("--id-col", default="trajectory", help="trajectory id column (default 'trajectory')")
+        q.add_argument("--group-col", default="group", help="group column, 1 = best (default 'group')")
+        q.add_argument("--feature-cols", help="comma-separated feature columns (default: all other columns)")
+        q.add_argument("--state-cols", help="comma-separated state columns (optional)")
+        q.add_argument("--action-cols", help="comma-separated action columns (optional)")
+        q.add_argument("--step-col", help="column ordering the rows of a trajectory (default: file order)")
+        q.add_argument("--nominal-weights", type=_floats, help="known nominal weights, one per feature column")
+        if kind == "csv":
+            q.add_argument("--delimiter", help="field separator (default ',')")
+        q.add_argument("--overwrite", action="store_true")
+        q.set_defaults(func=_cmd_import_table, format=kind)
+    q = isub.add_parser("minari", help="a local Minari dataset plus a feature function")
+    q.add_argument("dataset_id", help="Minari dataset id (read locally, never downloaded)")
+    q.add_argument("--out", type=Path, required=True, help="output dataset .npz")
+    q.add_argument("--features", help="feature function 'module:function' or 'file.py:function', "
+                                      "episode -> (T, d) array (default: infos['features'])")
+    q.add_argument("--groups", help="JSON file {episode id: group} or [group, ...], or 'module:function' "
+                                    "episode -> group (default: infos['group'])")
+    q.add_argument("--root", type=Path, help="directory holding Minari datasets")
+    q.add_argument("--feature-names", help="comma-separated feature names")
+    q.add_argument("--nominal-weights", type=_floats)
+    q.add_argument("--no-states", action="store_true", help="do not keep observations as states")
+    q.add_argument("--overwrite", action="store_true")
+    q.set_defaults(func=_cmd_import_minari)

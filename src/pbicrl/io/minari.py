@@ -1,0 +1,181 @@
+"""Import trajectories from a local Minari dataset with a user-supplied feature function.
+
+Minari (``pip install "minari[hdf5]"``) stores episodes (observations, actions, rewards, infos) but no
+preference labels and no features, so the user supplies both:
+
+* ``feature_fn(episode) -> array (T_i, d)``: per-state features :math:`\\phi(s)` of one episode (a Minari
+  ``EpisodeData`` with ``observations``, ``actions``, ``rewards``, ``infos``, ``id``);
+* ``groups``: a callable ``episode -> int``, a mapping ``{episode id: group}``, or a sequence with one label per
+  episode (1 = best).
+
+Datasets written by pbicrl itself (:func:`pbicrl.envs.minari_io.episodes_to_minari`) carry
+``infos["features"]`` and ``infos["group"]``; both are used when ``feature_fn`` / ``groups`` are not given.
+Nothing is downloaded: datasets are read from ``root`` (or Minari's default directory).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from pbicrl.data import Dataset, DatasetError
+
+__all__ = ["from_minari", "load_feature_function"]
+
+FeatureFn = Callable[[Any], ArrayLike]
+
+
+def _episode_group(ep: Any, k: int, groups: Any) -> int:
+    if groups is None:
+        infos = getattr(ep, "infos", None) or {}
+        if "group" not in infos:
+            raise DatasetError(f"groups: episode {ep.id} has no infos['group']; pass groups= (a function of the "
+                               "episode, a mapping {episode id: group} or one label per episode)")
+        g = np.asarray(infos["group"]).reshape(-1)[0]
+    elif callable(groups):
+        g = groups(ep)
+    elif isinstance(groups, Mapping):
+        if ep.id not in groups and str(ep.id) not in groups:
+            raise DatasetError(f"groups: no label for episode {ep.id}")
+        g = groups[ep.id] if ep.id in groups else groups[str(ep.id)]
+    else:
+        if k >= len(groups):
+            raise DatasetError(f"groups: {len(groups)} labels for more episodes (episode index {k})")
+        g = groups[k]
+    try:
+        gi = int(g)
+    except (TypeError, ValueError):
+        raise DatasetError(f"groups: episode {ep.id}: label {g!r} is not an integer") from None
+    if gi != g or gi < 1:
+        raise DatasetError(f"groups: episode {ep.id}: labels must be positive integers (1 = best), got {g!r}")
+    return gi
+
+
+def _episode_features(ep: Any, feature_fn: FeatureFn | None) -> np.ndarray:
+    if feature_fn is None:
+        infos = getattr(ep, "infos", None) or {}
+        if "features" not in infos:
+            raise DatasetError(f"feature_fn: episode {ep.id} has no infos['features']; pass a feature function "
+                               "feature_fn(episode) -> array (T, d)")
+        raw = infos["features"]
+    else:
+        raw = feature_fn(ep)
+    try:
+        f = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"feature_fn: episode {ep.id}: features are not numeric") from None
+    if f.ndim == 1:
+        f = f[:, None]
+    if f.ndim != 2 or f.shape[0] == 0:
+        raise DatasetError(f"feature_fn: episode {ep.id}: expected an array (T, d) with T >= 1, got shape {f.shape}")
+    if not np.all(np.isfinite(f)):
+        raise DatasetError(f"feature_fn: episode {ep.id}: features contain NaN or inf")
+    return f
+
+
+def _episode_states(ep: Any, T: int) -> np.ndarray | None:
+    obs = getattr(ep, "observations", None)
+    if obs is None or isinstance(obs, (dict, tuple)):
+        return None  # structured observations: no flat state vector
+    s = np.asarray(obs, dtype=np.float64)
+    s = s.reshape(s.shape[0], -1) if s.ndim != 2 else s
+    if s.shape[0] == T:
+        return s
+    if s.shape[0] == T + 1:
+        return s[:-1]  # features per step, observations include the final state
+    raise DatasetError(f"feature_fn: episode {ep.id}: {T} feature rows but {s.shape[0]} observations; return one "
+                       "row per observation (or per step), or pass states=False")
+
+
+def from_minari(
+    dataset: Any,
+    feature_fn: FeatureFn | None = None,
+    *,
+    groups: Callable[[Any], int] | Mapping[Any, int] | Sequence[int] | None = None,
+    root: str | os.PathLike[str] | None = None,
+    feature_names: Sequence[str] | None = None,
+    nominal_weights: ArrayLike | None = None,
+    states: bool = True,
+    episode_indices: Sequence[int] | None = None,
+) -> Dataset:
+    """Convert a Minari dataset into a :class:`Dataset`.
+
+    Parameters
+    ----------
+    dataset : MinariDataset or str
+        A loaded dataset or its id (read from ``root``; never downloaded).
+    feature_fn : callable, optional
+        ``feature_fn(episode) -> (T_i, d)`` per-state features; default ``episode.infos["features"]``.
+    groups : callable, mapping or sequence, optional
+        Group label per episode; default ``episode.infos["group"]``.
+    root : path, optional
+        Directory holding Minari datasets (default: Minari's).
+    feature_names, nominal_weights : optional
+        Stored in the dataset.
+    states : bool
+        Keep the (flat) observations as states, aligned with the feature rows.
+    episode_indices : sequence of int, optional
+        Only these episodes (Minari indices).
+
+    Raises
+    ------
+    ImportError
+        Without minari (the message names the pip command).
+    DatasetError
+        With the episode id, for missing labels or features, bad shapes or a single group.
+    """
+    from pbicrl.envs.minari_io import load_minari, require_minari
+
+    require_minari()
+    if isinstance(dataset, (str, os.PathLike)):
+        dataset = load_minari(str(dataset), root)
+    if feature_fn is not None and not callable(feature_fn):
+        raise TypeError(f"feature_fn: expected a callable episode -> (T, d) array, got {type(feature_fn).__name__}")
+    episodes = dataset.iterate_episodes(episode_indices) if episode_indices is not None else dataset.iterate_episodes()
+    feats, labels, st = [], [], []
+    for k, ep in enumerate(episodes):
+        f = _episode_features(ep, feature_fn)
+        if feats and f.shape[1] != feats[0].shape[1]:
+            raise DatasetError(f"feature_fn: episode {ep.id} has {f.shape[1]} features, the first episode has "
+                               f"{feats[0].shape[1]}")
+        feats.append(f)
+        labels.append(_episode_group(ep, k, groups))
+        if states:
+            st.append(_episode_states(ep, f.shape[0]))
+    if not feats:
+        raise DatasetError("dataset: no episodes")
+    keep_states = states and all(s is not None for s in st)
+    return Dataset.from_trajectories(feats, np.asarray(labels), states=st if keep_states else None,
+                                     feature_names=feature_names, nominal_weights=nominal_weights)
+
+
+def load_feature_function(spec: str) -> FeatureFn:
+    """``"package.module:function"`` or ``"path/to/file.py:function"`` -> the function (for the CLI)."""
+    import importlib
+    import importlib.util
+    from pathlib import Path
+
+    if ":" not in spec:
+        raise ValueError(f"--features: expected 'module:function' or 'file.py:function', got {spec!r}")
+    mod_name, _, fn_name = spec.rpartition(":")
+    if mod_name.endswith(".py"):
+        path = Path(mod_name)
+        if not path.is_file():
+            raise FileNotFoundError(f"--features: {path}: no such file")
+        module_spec = importlib.util.spec_from_file_location(path.stem, path)
+        if module_spec is None or module_spec.loader is None:
+            raise ValueError(f"--features: cannot import {path}")
+        module = importlib.util.module_from_spec(module_spec)
+        module_spec.loader.exec_module(module)
+    else:
+        try:
+            module = importlib.import_module(mod_name)
+        except ImportError as exc:
+            raise ImportError(f"--features: cannot import module {mod_name!r} ({exc})") from exc
+    fn = getattr(module, fn_name, None)
+    if not callable(fn):
+        raise ValueError(f"--features: {mod_name} has no function {fn_name!r}")
+    return fn

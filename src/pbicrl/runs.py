@@ -1,0 +1,185 @@
+"""Read a run directory written by ``pbicrl infer`` / :meth:`pbicrl.results.Posterior.save`.
+
+:func:`load_run` returns a :class:`RunRecord`: the draws of ``chains.npz`` and the numbers of
+``summary.json``, with the same attribute names as :class:`~pbicrl.results.Posterior` (``indicators``,
+``penalty_weights``, ``log_likelihood``, ``feature_names``, ``map_indicators``, ...), so diagnostics, export
+and plots accept either.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["RunRecord", "RunError", "load_run"]
+
+
+class RunError(ValueError):
+    """A run directory that cannot be read; the message names the file or field."""
+
+
+@dataclass(frozen=True, eq=False)
+class RunRecord:
+    """Draws and summary of a finished run.
+
+    Attributes
+    ----------
+    path : Path
+        The run directory.
+    summary : dict
+        ``summary.json``.
+    indicators : ndarray, (chains, draws, d) int8
+    penalty_weights : ndarray, (chains, draws, d)
+    log_likelihood, log_prior : ndarray, (chains, draws)
+    feature_names : tuple of str
+    map_indicators, map_penalty_weights : ndarray, (d,)
+    parameters : ndarray (chains, draws, p) or None
+        Parameters of parametric constraints, when the run has them.
+    parameter_names : tuple of str
+    map_parameters : ndarray (p,) or None
+    parameter_owner : tuple of int
+        Feature index of the constraint each parameter belongs to (from ``chains.npz``, else from the
+        ``"<constraint>.<parameter>"`` names).
+    """
+
+    path: Path
+    summary: dict
+    indicators: NDArray[np.int8]
+    penalty_weights: NDArray[np.float64]
+    log_likelihood: NDArray[np.float64]
+    log_prior: NDArray[np.float64]
+    feature_names: tuple[str, ...]
+    map_indicators: NDArray[np.int8]
+    map_penalty_weights: NDArray[np.float64]
+    parameters: NDArray[np.float64] | None = None
+    parameter_names: tuple[str, ...] = field(default=())
+    map_parameters: NDArray[np.float64] | None = None
+    parameter_owner: tuple[int, ...] = field(default=())
+
+    # Posterior-compatible views --------------------------------------------------------------
+    @property
+    def method(self) -> str:
+        return str(self.summary.get("method", "pbicrl"))
+
+    @property
+    def settings(self) -> dict:
+        return dict(self.summary.get("settings", {}))
+
+    @property
+    def extra(self) -> dict:
+        return dict(self.summary.get("extra", {}))
+
+    @property
+    def seed(self) -> int:
+        return int(self.summary.get("seed", 0))
+
+    @property
+    def n_chains(self) -> int:
+        return int(self.indicators.shape[0])
+
+    @property
+    def n_draws(self) -> int:
+        return int(self.indicators.shape[1])
+
+    @property
+    def n_features(self) -> int:
+        return int(self.indicators.shape[2])
+
+    @property
+    def effective_penalty(self) -> NDArray[np.float64]:
+        return self.indicators * self.penalty_weights
+
+    @property
+    def map_effective_penalty(self) -> NDArray[np.float64]:
+        return self.map_indicators * self.map_penalty_weights
+
+    @property
+    def p_constraint(self) -> NDArray[np.float64]:
+        return self.indicators.reshape(-1, self.n_features).mean(axis=0)
+
+    @property
+    def data_path(self) -> Path | None:
+        """The dataset the run used, as recorded in ``summary.json`` (``extra.data.path``), if any."""
+        p = self.extra.get("data", {}).get("path")
+        return None if p is None else Path(p)
+
+
+def _array(z: Any, key: str, path: Path, ndim: int) -> NDArray:
+    if key not in z:
+        raise RunError(f"{path}: missing array '{key}'")
+    a = np.asarray(z[key])
+    if a.ndim != ndim:
+        raise RunError(f"{path}: '{key}' should have {ndim} dimensions, has shape {a.shape}")
+    return a
+
+
+def load_run(run_dir: str | os.PathLike[str]) -> RunRecord:
+    """Read ``summary.json`` and ``chains.npz`` from a run directory.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the directory or one of the two files does not exist.
+    RunError
+        If a file is malformed (the message names it).
+    """
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise FileNotFoundError(f"run: {run}: no such directory (expected the --out directory of pbicrl infer)")
+    sj, cz = run / "summary.json", run / "chains.npz"
+    for f in (sj, cz):
+        if not f.is_file():
+            raise FileNotFoundError(f"run: {f}: missing (a run directory holds summary.json and chains.npz)")
+    try:
+        summary = json.loads(sj.read_text())
+    except json.JSONDecodeError as exc:
+        raise RunError(f"{sj}: not valid JSON ({exc})") from None
+    if not isinstance(summary, dict):
+        raise RunError(f"{sj}: expected a JSON object")
+    try:
+        with np.load(cz, allow_pickle=False) as z:
+            ind = _array(z, "indicators", cz, 3).astype(np.int8)
+            wp = _array(z, "penalty_weights", cz, 3).astype(np.float64)
+            ll = _array(z, "log_likelihood", cz, 2).astype(np.float64)
+            lp = z["log_prior"].astype(np.float64) if "log_prior" in z else np.zeros_like(ll)
+            names = tuple(str(n) for n in z["feature_names"].tolist()) if "feature_names" in z else \
+                tuple(summary.get("feature_names") or [f"f{j}" for j in range(ind.shape[2])])
+            map_c = z["map_indicators"].astype(np.int8) if "map_indicators" in z else None
+            map_w = z["map_penalty_weights"].astype(np.float64) if "map_penalty_weights" in z else None
+            params = z["parameters"].astype(np.float64) if "parameters" in z else None
+            pnames = tuple(str(n) for n in z["parameter_names"].tolist()) if "parameter_names" in z else ()
+            map_params = z["map_parameters"].astype(np.float64) if "map_parameters" in z else None
+            owner = tuple(int(j) for j in z["parameter_owner"].tolist()) if "parameter_owner" in z else ()
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        if isinstance(exc, RunError):
+            raise
+        raise RunError(f"{cz}: not a readable .npz archive ({exc})") from None
+    if wp.shape != ind.shape or ll.shape != ind.shape[:2]:
+        raise RunError(f"{cz}: inconsistent shapes: indicators {ind.shape}, penalty_weights {wp.shape}, "
+                       f"log_likelihood {ll.shape}")
+    if len(names) != ind.shape[2]:
+        raise RunError(f"{cz}: {len(names)} feature names for {ind.shape[2]} features")
+    if map_c is None or map_w is None:
+        m = summary.get("map", {})
+        map_c = np.array([m.get("indicators", {}).get(n, 0) for n in names], dtype=np.int8)
+        map_w = np.array([m.get("penalty_weights", {}).get(n, 0.0) or 0.0 for n in names], dtype=np.float64)
+    if params is not None and params.size == 0:
+        params, pnames, map_params, owner = None, (), None, ()  # a run without parametric constraints
+    if params is not None:
+        if params.ndim == 2:
+            params = params[:, :, None]
+        if params.shape[:2] != ind.shape[:2]:
+            raise RunError(f"{cz}: parameters have shape {params.shape}, draws are {ind.shape[:2]}")
+        if not pnames:
+            pnames = tuple(summary.get("parameter_names") or [f"theta{k}" for k in range(params.shape[2])])
+        if len(owner) != len(pnames):
+            heads = [n.rsplit(".", 1)[0] for n in pnames]
+            owner = tuple(names.index(h) for h in heads) if all(h in names for h in heads) else ()
+    return RunRecord(run, summary, ind, wp, ll, lp, names, map_c, map_w, params, pnames, map_params, owner)
