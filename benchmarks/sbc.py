@@ -77,14 +77,18 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=20_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--group-pairs", type=int, help="groups design: N random pairs per group pair instead of all")
+    ap.add_argument("--power", default="1", help="likelihood power: a number in (0, 1] or 'pairs'")
     ap.add_argument("--diagnose", action="store_true", help="also record R-hat / ESS of every replicate (needs ArviZ)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/reports"))
     args = ap.parse_args()
     designs = ["pairs", "groups"] if args.design == "both" else [args.design]
     for design in designs:
         gp = args.group_pairs if (design == "groups" and args.group_pairs) else "all"
-        problem = SBCProblem(design=design, group_pairs=gp)
+        power = args.power if args.power == "pairs" else float(args.power)
+        problem = SBCProblem(design=design, group_pairs=gp, power=power)
         tag = design if gp == "all" else f"{design}_pairs{gp}"
+        if power != 1.0:
+            tag += f"_power-{args.power}"
         t0 = time.perf_counter()
 
         def tick(r: int, design: str = design, t0: float = t0) -> None:

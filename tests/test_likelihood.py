@@ -94,3 +94,21 @@ def test_bt_probability_and_convenience():
         PreferenceLikelihood(np.ones((2, 1)), Preferences.from_groups([1, 2]), np.ones(1), beta=0.0)
     with pytest.raises(ValueError, match="nominal_weights"):
         PreferenceLikelihood(np.ones((2, 1)), Preferences.from_groups([1, 2]), np.ones(2))
+
+
+def test_power_tempers_the_log_likelihood():
+    from pbicrl.likelihood import pairwise_power
+
+    ds = Dataset.from_trajectories([np.array([[1.0]]), np.array([[0.5]]), np.array([[0.0]]), np.array([[-1.0]])],
+                                   [1, 1, 2, 2], nominal_weights=[1.0])
+    full = PreferenceLikelihood.from_dataset(ds)
+    half = PreferenceLikelihood.from_dataset(ds, power=0.5)
+    assert half([0.3]) == pytest.approx(0.5 * full([0.3]))
+    # 4 trajectories, 4 pairs: one comparison's worth of evidence per trajectory
+    assert pairwise_power(full.preferences) == pytest.approx(1.0)
+    big = Preferences.from_groups(np.repeat([1, 2, 3], 10))
+    assert pairwise_power(big) == pytest.approx(30 / 300)
+    with pytest.raises(ValueError, match="power"):
+        PreferenceLikelihood.from_dataset(ds, power=1.5)
+    with pytest.raises(ValueError, match="power"):
+        PreferenceLikelihood.from_dataset(ds, power="half")

@@ -52,6 +52,7 @@ def infer(
     nominal_weights: ArrayLike | None = None,
     margins: Margins | ArrayLike | None = None,
     beta: float = 1.0,
+    power: float | str = 1.0,
     pairs: str | int = "all",
     pairs_seed: int = 0,
     n_iterations: int = 400_000,
@@ -86,6 +87,9 @@ def infer(
         :math:`m_{k\\ell}` (default 0).
     beta : float
         Inverse temperature :math:`\\beta`.
+    power : float or "pairs"
+        Likelihood power in (0, 1] (1 = the paper); ``"pairs"`` = trajectories / pairs, which tempers the
+        overconfidence of the all-pairs likelihood (see :class:`~pbicrl.likelihood.PreferenceLikelihood`).
     pairs : "all" or int
         Every cross-group pair (paper Eq. 7) or ``pairs`` random pairs per group pair (seeded by ``pairs_seed``).
     n_iterations, burn_in, thin, n_chains, seed, n_jobs, sigma, f_s, p_flip, init_scale
@@ -112,7 +116,7 @@ def infer(
         except (TypeError, ValueError):
             raise ConfigError(f"pairs: expected 'all' or a number of pairs per group pair, got {pairs!r}") from None
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,
-                                            nominal_weights=nominal_weights, beta=beta)
+                                            nominal_weights=nominal_weights, beta=beta, power=power)
     cset = None
     if constraints:
         cset = ConstraintSet(tuple(c if isinstance(c, Constraint) else constraint_from_dict(c) for c in constraints),
@@ -137,7 +141,7 @@ def infer_from_config(dataset: Dataset, config: InferConfig, *, progress: bool =
     """:func:`infer` with an :class:`~pbicrl.config.InferConfig`."""
     c = config
     return infer(
-        dataset, method=c.sampler, nominal_weights=c.nominal_weights, margins=c.margins, beta=c.beta,
+        dataset, method=c.sampler, nominal_weights=c.nominal_weights, margins=c.margins, beta=c.beta, power=c.power,
         pairs=c.pairs, pairs_seed=c.pairs_seed, n_iterations=c.iterations, burn_in=c.burn_in, thin=c.thin,
         n_chains=c.chains, seed=c.seed, n_jobs=c.jobs, sigma=c.sigma, f_s=c.f_s, p_flip=c.p_flip,
         init_scale=c.init_scale,

@@ -68,6 +68,8 @@ class SBCProblem:
         Nominal weight of every feature (the same known :math:`w_n` for all).
     feature_scale : float
         Standard deviation of the per-trajectory mean features.
+    power : float or "pairs"
+        Likelihood power used for inference (see :class:`~pbicrl.likelihood.PreferenceLikelihood`).
     """
 
     n_features: int = 2
@@ -81,6 +83,7 @@ class SBCProblem:
     pi: float = 0.5
     nominal: float = 0.0
     feature_scale: float = 1.0
+    power: float | str = 1.0
 
     def __post_init__(self) -> None:
         if self.design not in ("pairs", "groups"):
@@ -113,7 +116,7 @@ class SBCProblem:
                 "length": self.length, "design": self.design,
                 "n_pairs": self.pairs_ if self.design == "pairs" else None,
                 "group_pairs": self.group_pairs if self.design == "groups" else None, "bound": self.bound,
-                "pi": self.pi, "nominal": self.nominal, "feature_scale": self.feature_scale}
+                "pi": self.pi, "nominal": self.nominal, "feature_scale": self.feature_scale, "power": self.power}
 
 
 def simulate(problem: SBCProblem, rng: np.random.Generator) -> tuple[PreferenceLikelihood, NDArray[np.int64], NDArray[np.float64]]:
@@ -148,7 +151,10 @@ def simulate(problem: SBCProblem, rng: np.random.Generator) -> tuple[PreferenceL
         group = np.empty(N, dtype=np.int64)
         group[order] = np.repeat(np.arange(1, int(problem.n_groups) + 1), int(problem.per_group))
         prefs = Preferences.from_groups(group, protocol=problem.group_pairs, seed=rng)
-    return PreferenceLikelihood(mean_features, prefs, wn, 1.0), c, wp
+    from pbicrl.likelihood import pairwise_power
+
+    power = pairwise_power(prefs) if problem.power == "pairs" else float(problem.power)
+    return PreferenceLikelihood(mean_features, prefs, wn, 1.0, power), c, wp
 
 
 def rank_statistics(truth: NDArray[np.float64], draws: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.int64]:

@@ -46,6 +46,18 @@ def _pairs(text: str) -> str | int:
     return n
 
 
+def _power(text: str) -> float | str:
+    if text == "pairs":
+        return text
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1] or 'pairs', got {text!r}") from None
+    if not 0 < x <= 1:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1] or 'pairs', got {text!r}")
+    return x
+
+
 def _positive_int(text: str) -> int:
     try:
         n = int(text.replace("_", ""))
@@ -85,6 +97,7 @@ def _add_infer(sub: Any) -> None:
     p.add_argument("--nominal-weights", type=_floats, help="known nominal weights w_n, e.g. '1,0,0,-1'")
     p.add_argument("--margins", type=_margins, help="K-1 consecutive gaps '0,2.9' or a matrix '0,0,6;0,0,2.9;0,0,0'")
     p.add_argument("--beta", type=_positive_float, help="inverse temperature (default 1)")
+    p.add_argument("--power", type=_power, help="likelihood power in (0, 1] (default 1 = the paper) or 'pairs'")
     p.add_argument("--pairs", type=_pairs, help="'all' cross-group pairs (default) or N random pairs per group pair")
     p.add_argument("--sampler", choices=["pbicrl", "paper", "bpl"], help="pbicrl (default), paper (Algorithm 1), bpl")
     p.add_argument("--iterations", type=_positive_int, help="iterations per chain (default 400000)")
@@ -117,7 +130,7 @@ def _cmd_infer(args: argparse.Namespace) -> int:
     if bounds is not None and len(bounds) != 2:
         raise ConfigError(f"--prior-bounds: expected two numbers 'low,high', got {len(bounds)}")
     cfg = cfg.updated(
-        nominal_weights=args.nominal_weights, margins=args.margins, beta=args.beta, pairs=args.pairs,
+        nominal_weights=args.nominal_weights, margins=args.margins, beta=args.beta, power=args.power, pairs=args.pairs,
         sampler=args.sampler, iterations=args.iterations, burn_in=args.burn_in, thin=args.thin, chains=args.chains,
         jobs=args.jobs, seed=args.seed, sigma=args.sigma, f_s=args.f_s, p_flip=args.p_flip, prior=args.prior,
         prior_low=None if bounds is None else bounds[0], prior_high=None if bounds is None else bounds[1],

@@ -26,6 +26,8 @@ class InferConfig:
         K-1 consecutive gaps or a K x K upper-triangular matrix :math:`m_{k\\ell}`.
     beta : float
         Inverse temperature.
+    power : float or "pairs"
+        Likelihood power in (0, 1]; 1 = the paper's likelihood.
     pairs : "all" or int
         All cross-group pairs, or that many random pairs per group pair.
     sampler : "pbicrl" | "paper" | "bpl"
@@ -47,6 +49,7 @@ class InferConfig:
     nominal_weights: list[float] | None = None
     margins: list | None = None
     beta: float = 1.0
+    power: float | str = 1.0
     pairs: str | int = "all"
     pairs_seed: int = 0
     sampler: str = "pbicrl"
@@ -77,7 +80,7 @@ class InferConfig:
 
 
 _TYPES: dict[str, tuple[type, ...]] = {
-    "beta": (int, float), "sigma": (int, float), "p_flip": (int, float), "init_scale": (int, float),
+    "beta": (int, float), "power": (int, float, str), "sigma": (int, float), "p_flip": (int, float), "init_scale": (int, float),
     "prior_low": (int, float), "prior_high": (int, float), "prior_mean": (int, float), "prior_scale": (int, float),
     "indicator_pi": (int, float), "iterations": (int,), "burn_in": (int,), "thin": (int,), "chains": (int,),
     "seed": (int,), "jobs": (int,), "f_s": (int,), "pairs_seed": (int,), "sampler": (str,), "prior": (str,),

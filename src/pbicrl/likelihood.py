@@ -24,7 +24,7 @@ from pbicrl import _kernels
 from pbicrl.data import Dataset
 from pbicrl.preferences import Margins, Preferences
 
-__all__ = ["PreferenceLikelihood", "log_likelihood", "log_likelihood_numpy", "scaled_returns"]
+__all__ = ["PreferenceLikelihood", "log_likelihood", "log_likelihood_numpy", "scaled_returns", "pairwise_power"]
 
 
 def scaled_returns(mean_features: NDArray[np.float64], weights: ArrayLike, beta: float = 1.0) -> NDArray[np.float64]:
@@ -46,12 +46,18 @@ class PreferenceLikelihood:
         Known :math:`w_n`.
     beta : float
         Inverse temperature :math:`\\beta > 0`.
+    power : float
+        Likelihood power :math:`\\gamma \\in (0, 1]`: the log-likelihood is multiplied by it (1 = the paper).
+        The all-pairs likelihood counts each of the :math:`(K-1)n` pairs a trajectory enters as independent
+        evidence, which makes its posterior overconfident (see ``benchmarks/reports``); a power below 1
+        tempers it. :func:`pairwise_power` gives the ratio of trajectories to pairs as a starting point.
     """
 
     mean_features: NDArray[np.float64]
     preferences: Preferences
     nominal_weights: NDArray[np.float64]
     beta: float = 1.0
+    power: float = 1.0
 
     def __post_init__(self) -> None:
         F = np.ascontiguousarray(self.mean_features, dtype=np.float64)
@@ -65,6 +71,10 @@ class PreferenceLikelihood:
         beta = float(self.beta)
         if not (np.isfinite(beta) and beta > 0):
             raise ValueError(f"beta: the inverse temperature must be a positive finite number, got {self.beta}")
+        power = float(self.power)
+        if not (np.isfinite(power) and 0.0 < power <= 1.0):
+            raise ValueError(f"power: the likelihood power must lie in (0, 1], got {self.power}")
+        object.__setattr__(self, "power", power)
         if self.preferences.n_trajectories != F.shape[0]:
             raise ValueError(f"preferences: built for {self.preferences.n_trajectories} trajectories, data have {F.shape[0]}")
         object.__setattr__(self, "mean_features", F)
@@ -82,13 +92,18 @@ class PreferenceLikelihood:
         nominal_weights: ArrayLike | None = None,
         beta: float = 1.0,
         preferences: Preferences | None = None,
+        power: float | str = 1.0,
     ) -> "PreferenceLikelihood":
         """Likelihood of a grouped dataset; nominal weights default to the dataset's (else zeros)."""
         if preferences is None:
             preferences = Preferences.from_groups(dataset.group, margins, protocol=protocol, seed=seed)
         if nominal_weights is None:
             nominal_weights = dataset.nominal_weights if dataset.nominal_weights is not None else np.zeros(dataset.n_features)
-        return cls(dataset.mean_features, preferences, np.asarray(nominal_weights, dtype=np.float64), beta)
+        if power == "pairs":
+            power = pairwise_power(preferences)
+        elif isinstance(power, str):
+            raise ValueError(f"power: expected a number in (0, 1] or 'pairs', got {power!r}")
+        return cls(dataset.mean_features, preferences, np.asarray(nominal_weights, dtype=np.float64), beta, float(power))
 
     @property
     def n_features(self) -> int:
@@ -125,11 +140,22 @@ class PreferenceLikelihood:
     def __call__(self, penalty_weights: ArrayLike, indicators: ArrayLike | None = None) -> float:
         """:math:`\\mathcal{L}(w_p, c)`; ``indicators`` default to all ones (BPL)."""
         a = self.beta * self.returns(penalty_weights, indicators)
-        return float(_kernels.total_loglik(a, *self.kernel_args()))
+        return self.power * float(_kernels.total_loglik(a, *self.kernel_args()))
 
     def from_scaled_returns(self, a: ArrayLike) -> float:
         """Log-likelihood for given scaled returns :math:`a` (N,)."""
-        return float(_kernels.total_loglik(np.ascontiguousarray(a, dtype=np.float64), *self.kernel_args()))
+        return self.power * float(_kernels.total_loglik(np.ascontiguousarray(a, dtype=np.float64), *self.kernel_args()))
+
+
+def pairwise_power(preferences: Preferences) -> float:
+    """Trajectories that take part in a pair divided by the number of pairs (at most 1).
+
+    With all cross-group pairs of ``K`` groups of ``n`` this is :math:`2 / ((K-1) n)`: the log-likelihood is
+    scaled as if each trajectory contributed one comparison's worth of evidence.
+    """
+    p = preferences
+    used = np.unique(np.concatenate([p.block_rows, p.block_cols, p.pair_i, p.pair_j]))
+    return float(min(1.0, used.size / max(p.n_pairs, 1)))
 
 
 def log_likelihood(dataset: Dataset, penalty_weights: ArrayLike, indicators: ArrayLike | None = None, *,

@@ -64,7 +64,7 @@ def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: n
 
 @njit(cache=True, error_model="numpy")
 def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
-              c, w, theta, a, scal, FbT, beta,
+              c, w, theta, a, scal, FbT, beta, power,
               brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi,
               fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi,
               u_j, u_mv, z, u_acc, zt,
@@ -76,7 +76,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
     """Advance one chain by ``n`` iterations (global iteration numbers ``it0 .. it0+n-1``, 0-based).
 
     ``scal`` = [log-likelihood, log-prior]; ``map_scal`` = [best log-posterior, its log-likelihood];
-    ``n_out`` = [number of stored draws]. ``naive`` recounts every state for axis halfspaces (benchmark only). Draws are stored after ``burn_in`` every ``thin`` iterations.
+    ``n_out`` = [number of stored draws]. ``power`` tempers the log-likelihood (1 = the paper's model). ``naive`` recounts every state for axis halfspaces (benchmark only). Draws are stored after ``burn_in`` every ``thin`` iterations.
     ``ad`` (5, d) and ``adt`` (5, P) are warm-up accumulators (count, sum, sum of squares; proposals, accepts).
     In ``pbicrl`` mode ``memo_ll[j]`` caches the likelihood with feature ``j`` switched off (valid while no
     other component changes); in ``paper`` mode it caches the likelihood of flipping ``j``.
@@ -133,7 +133,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + delta * FbT[j, i]
-                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
                     counts[C_EVALS] += 1
                     memo_valid[j] = True
                     memo_ll[j] = ll_new
@@ -168,7 +168,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                             col_new[i] = FbT[j, i]
                     for i in range(N):
                         a_new[i] = a[i] + w_new * col_new[i]
-                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
                     counts[C_EVALS] += 1
                     log_r = ll_new - ll + log_odds + lpw - lq
                     if math.log(u_acc[t]) < log_r:
@@ -200,7 +200,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] - w[j] * FbT[j, i]
-                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
                     counts[C_EVALS] += 1
                     memo_valid[j] = True
                     memo_ll[j] = ll_new
@@ -230,7 +230,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + step * FbT[j, i]
-                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
                     counts[C_EVALS] += 1
                     log_r = ll_new - ll + lp_newj - lp_old
                     if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
@@ -264,7 +264,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + w[j] * (col_new[i] - FbT[j, i])
-                    ll_new = total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
                     counts[C_EVALS] += 1
                     log_r = ll_new - ll + lpt_new - lpt_old
                     if log_r >= 0.0 or math.log(u_acc[t]) < log_r:

@@ -383,7 +383,7 @@ class Kernel:
         _mcmc.run_chunk(
             _MODE[s.method], n, st.iteration, s.burn_in_, s.thin_, 500 if s.adapt_ else 0, self.d_known,
             bool(s.naive_counts),
-            st.indicators, st.penalty_weights, st.parameters, st.scaled_returns, scal, st.features_T, lik.beta,
+            st.indicators, st.penalty_weights, st.parameters, st.scaled_returns, scal, st.features_T, lik.beta, lik.power,
             *lik.kernel_args(),
             A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"], A["sorted_vals"], A["states"], A["offsets"],
             A["inv_len"], A["lo"], A["hi"],
