@@ -1,0 +1,387 @@
+"""Resumable Soft Actor-Critic training (Stable-Baselines3) for demonstrators.
+
+:func:`train_sac` trains an SB3 SAC agent on any Gymnasium environment and is
+built to survive interruptions on a shared CPU box:
+
+* every ``checkpoint_every`` steps it writes ``out_dir/checkpoint/`` (full model
+  with optimisers, replay buffer, step count, cumulative wall time) atomically;
+  calling :func:`train_sac` again with the same ``out_dir`` resumes from it;
+* SIGTERM/SIGINT stop training cleanly after writing a checkpoint;
+* ``out_dir/progress.log`` gets one line per ``log_every`` steps (steps, steps/s,
+  mean return and length of the recent episodes);
+* ``out_dir/budget.json`` records requested/done steps, wall time, all
+  hyperparameters and library versions;
+* at the end ``out_dir/policy.zip`` holds only the policy networks (small, no
+  replay buffer or optimiser state; load with :func:`load_policy`) and
+  ``out_dir/final_model.zip`` the full SB3 model (for warm starts via ``init_from``).
+
+Defaults follow the paper's SAC table (learning rate 3e-4 for all nets, batch 128,
+two hidden layers of 256 units, replay buffer 10 000).
+
+Torch and Stable-Baselines3 are imported lazily; without them an ImportError
+names ``pip install "pbicrl[rl]"``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import shutil
+import signal
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = ["SACConfig", "load_policy", "require_rl", "train_sac"]
+
+_CKPT = "checkpoint"
+_CKPT_OLD = "checkpoint.old"
+
+
+def require_rl() -> tuple[Any, Any]:
+    """Import torch and stable_baselines3 or raise an ImportError naming the extra."""
+    try:
+        import stable_baselines3
+        import torch
+    except ImportError as exc:
+        raise ImportError(
+            f"SAC training needs torch and stable-baselines3 ({exc}): pip install \"pbicrl[rl]\""
+        ) from exc
+    return torch, stable_baselines3
+
+
+class SACConfig(dict):
+    """Plain dict of the hyperparameters recorded in ``budget.json``."""
+
+
+def _is_finite(value: Any) -> bool:
+    try:
+        return math.isfinite(float(value))
+    except (TypeError, ValueError):
+        return False
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for mod in ("numpy", "torch", "stable_baselines3", "gymnasium", "mujoco"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception as exc:  # noqa: BLE001 - version reporting must never fail training
+            out[mod] = f"unknown ({type(exc).__name__})"
+    return out
+
+
+def _write_json_atomic(path: Path, obj: Any) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(obj, fh, indent=2, sort_keys=True)
+            fh.write("\n")
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; these files are meant to be shared
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _find_checkpoint(out_dir: Path) -> Path | None:
+    for name in (_CKPT, _CKPT_OLD):
+        d = out_dir / name
+        if (d / "state.json").is_file() and (d / "model.zip").is_file() and (d / "replay_buffer.pkl").is_file():
+            return d
+    return None
+
+
+def _save_checkpoint(model: Any, out_dir: Path, state: dict[str, Any]) -> None:
+    """Write model + replay buffer + state into a temp dir, then swap it in."""
+    tmp = Path(tempfile.mkdtemp(dir=out_dir, prefix=".checkpoint."))
+    try:
+        model.save(tmp / "model.zip")
+        model.save_replay_buffer(tmp / "replay_buffer.pkl")
+        _write_json_atomic(tmp / "state.json", state)
+        cur, old = out_dir / _CKPT, out_dir / _CKPT_OLD
+        if old.exists():
+            shutil.rmtree(old)
+        if cur.exists():
+            os.replace(cur, old)
+        os.replace(tmp, cur)
+        if old.exists():
+            shutil.rmtree(old)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _atomic_model_save(obj: Any, path: Path) -> None:
+    tmp = path.with_name(f".{path.stem}.tmp.zip")
+    obj.save(tmp)
+    os.replace(tmp, path)
+
+
+def load_policy(path: str | os.PathLike, device: str = "cpu") -> Any:
+    """Load a ``policy.zip`` written by :func:`train_sac`.
+
+    Returns
+    -------
+    stable_baselines3.sac.policies.SACPolicy
+        Call ``policy.predict(obs, deterministic=...)`` to act.
+    """
+    require_rl()
+    from stable_baselines3.sac.policies import SACPolicy
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"policy: no such file {path}")
+    policy = SACPolicy.load(str(path), device=device)
+    policy.set_training_mode(False)
+    return policy
+
+
+def train_sac(
+    env_fn: Callable[[], Any],
+    total_steps: int,
+    out_dir: str | os.PathLike,
+    *,
+    seed: int = 0,
+    learning_rate: float = 3e-4,
+    batch_size: int = 128,
+    net_arch: Sequence[int] = (256, 256),
+    buffer_size: int = 10_000,
+    learning_starts: int = 10_000,
+    gamma: float = 0.99,
+    tau: float = 0.005,
+    train_freq: int = 1,
+    gradient_steps: int = 1,
+    checkpoint_every: int = 10_000,
+    log_every: int = 2_000,
+    torch_threads: int = 1,
+    init_from: str | os.PathLike | None = None,
+    metadata: dict[str, Any] | None = None,
+    progress: bool = True,
+    policy_kwargs: dict[str, Any] | None = None,
+    ent_coef: float | str = "auto",
+    replay_buffer_kwargs: dict[str, Any] | None = None,
+    deadline: float | None = None,
+) -> Path:
+    """Train (or resume training of) a SAC agent; return the path of ``policy.zip``.
+
+    Parameters
+    ----------
+    env_fn : callable
+        Zero-argument factory returning a fresh Gymnasium environment (time limit included).
+    total_steps : int
+        Total environment steps to reach, counted across resumes.
+    out_dir : path
+        Run directory (created). If it holds a checkpoint, training resumes from it.
+    seed : int
+        Seed for SB3/torch and the environment resets (offset by the resume count).
+    learning_rate, batch_size, net_arch, buffer_size, gamma, tau, train_freq, gradient_steps
+        SAC hyperparameters (same learning rate for actor, critics and temperature).
+    learning_starts : int
+        Number of initial steps with uniformly random actions (the paper used 40 episodes).
+    checkpoint_every : int
+        Steps between checkpoints (model + replay buffer).
+    log_every : int
+        Steps between lines in ``progress.log``.
+    torch_threads : int
+        ``torch.set_num_threads`` value (1 is fastest for these small networks on a shared CPU).
+    init_from : path, optional
+        SB3 model zip (e.g. another run's ``final_model.zip``) whose networks initialise a
+        fresh run (warm start; its replay buffer is not used). Ignored when resuming.
+    metadata : dict, optional
+        JSON-serialisable description (environment, reward) stored in ``budget.json``.
+    progress : bool
+        Also echo the progress lines to stderr.
+    policy_kwargs : dict, optional
+        Extra SB3 ``policy_kwargs`` for a new run (e.g. a ``features_extractor_class`` that
+        rescales observations); ``net_arch`` always comes from ``net_arch``.
+    ent_coef : float or str
+        SAC entropy coefficient: ``"auto"`` (learned, SB3 default; ``"auto_0.1"`` sets its
+        initial value) or a fixed float.
+    replay_buffer_kwargs : dict, optional
+        Passed to SB3's replay buffer of a new run (e.g. ``{"handle_timeout_termination": False}``
+        to treat time-limit truncations as terminal).
+    deadline : float, optional
+        Unix time (``time.time()``) at which to stop early and finalise the policy with
+        the steps done so far (``budget.json`` status ``"deadline"``): a wall-clock budget
+        for shared machines. A later call (larger ``total_steps`` or later deadline) resumes.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir/policy.zip`` if training completed; if it was interrupted by a signal,
+        the checkpoint was written and ``KeyboardInterrupt`` is raised instead.
+
+    Raises
+    ------
+    ValueError
+        For invalid option values (the message names the option).
+    """
+    torch, _sb3 = require_rl()
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.monitor import Monitor
+
+    for name, value, lo in (("total_steps", total_steps, 1), ("batch_size", batch_size, 1),
+                            ("buffer_size", buffer_size, 1), ("learning_starts", learning_starts, 0),
+                            ("checkpoint_every", checkpoint_every, 1), ("log_every", log_every, 1),
+                            ("torch_threads", torch_threads, 1), ("train_freq", train_freq, 1),
+                            ("gradient_steps", gradient_steps, 1)):
+        if int(value) != value or int(value) < lo:
+            raise ValueError(f"{name}: must be an integer >= {lo}, got {value!r}")
+    if deadline is not None and not _is_finite(deadline):
+        raise ValueError(f"deadline: must be a finite unix time, got {deadline!r}")
+    if not (learning_rate > 0):
+        raise ValueError(f"learning_rate: must be > 0, got {learning_rate!r}")
+    net_arch = [int(h) for h in net_arch]
+    if not net_arch or min(net_arch) < 1:
+        raise ValueError(f"net_arch: must be a non-empty list of positive layer sizes, got {net_arch!r}")
+
+    torch.set_num_threads(int(torch_threads))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log_path = out_dir / "progress.log"
+    budget_path = out_dir / "budget.json"
+
+    hyper = SACConfig(learning_rate=learning_rate, batch_size=batch_size, net_arch=net_arch,
+                      buffer_size=buffer_size, learning_starts=learning_starts, gamma=gamma, tau=tau,
+                      train_freq=train_freq, gradient_steps=gradient_steps, seed=seed,
+                      torch_threads=torch_threads, ent_coef=ent_coef, replay_buffer_kwargs=replay_buffer_kwargs,
+                      init_from=None if init_from is None else str(init_from),
+                      policy_kwargs=None if not policy_kwargs else {k: repr(v) for k, v in policy_kwargs.items()})
+
+    def log(msg: str) -> None:
+        line = f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {msg}"
+        with open(log_path, "a") as fh:
+            fh.write(line + "\n")
+        if progress:
+            print(line, file=sys.stderr, flush=True)
+
+    env = Monitor(env_fn())
+    ckpt = _find_checkpoint(out_dir)
+    if ckpt is not None:
+        state = json.loads((ckpt / "state.json").read_text())
+        model = SAC.load(ckpt / "model.zip", env=env, device="cpu")
+        model.load_replay_buffer(ckpt / "replay_buffer.pkl")
+        sessions = list(state.get("sessions", []))
+        wall_before = float(state.get("wall_time_s", 0.0))
+        log(f"resume from {ckpt.name} at step {model.num_timesteps} (session {len(sessions) + 1})")
+    else:
+        state = {}
+        sessions = []
+        wall_before = 0.0
+        if init_from is not None:
+            init_path = Path(init_from)
+            if not init_path.is_file():
+                raise ValueError(f"init_from: no such model file {init_path}")
+            custom = {"learning_rate": learning_rate, "lr_schedule": (lambda _: learning_rate),
+                      "batch_size": batch_size, "buffer_size": buffer_size,
+                      "learning_starts": learning_starts, "gamma": gamma, "tau": tau,
+                      "train_freq": train_freq, "gradient_steps": gradient_steps}
+            model = SAC.load(init_path, env=env, device="cpu", custom_objects=custom)
+            model.num_timesteps = 0
+            model._episode_num = 0
+            model.ep_info_buffer = None  # report only this run's episodes
+            model.ep_success_buffer = None
+            log(f"new run warm-started from {init_path}")
+        else:
+            model = SAC("MlpPolicy", env, learning_rate=learning_rate, buffer_size=buffer_size, ent_coef=ent_coef,
+                        replay_buffer_kwargs=replay_buffer_kwargs,
+                        learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
+                        train_freq=train_freq, gradient_steps=gradient_steps,
+                        policy_kwargs={**(policy_kwargs or {}), "net_arch": net_arch}, seed=seed,
+                        device="cpu", verbose=0)
+            log("new run")
+    session_idx = len(sessions)
+    model.set_random_seed(seed + 1000 * session_idx)
+    env.reset(seed=seed + 1000 * session_idx)
+
+    start_steps = int(model.num_timesteps)
+    t_start = time.time()
+    stop = {"flag": False, "deadline": False}
+
+    def _handler(signum, _frame):  # stop at the next step; checkpoint is written below
+        stop["flag"] = True
+
+    old_handlers = {}
+    try:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            old_handlers[sig] = signal.signal(sig, _handler)
+    except ValueError:  # not in the main thread: no signal handling
+        old_handlers = {}
+
+    def make_state(done: int) -> dict[str, Any]:
+        return {"num_timesteps": done, "wall_time_s": wall_before + (time.time() - t_start),
+                "sessions": sessions + [{"start_step": start_steps, "end_step": done,
+                                         "wall_time_s": time.time() - t_start,
+                                         "started_utc": time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(t_start))}]}
+
+    def write_budget(done: int, status: str) -> None:
+        st = make_state(done)
+        _write_json_atomic(budget_path, {
+            "requested_steps": int(total_steps), "done_steps": done, "status": status,
+            "wall_time_s": round(st["wall_time_s"], 1), "sessions": st["sessions"],
+            "mean_steps_per_s": round(done / st["wall_time_s"], 2) if st["wall_time_s"] > 0 else None,
+            "hyperparameters": dict(hyper), "versions": _versions(), "metadata": metadata or {},
+        })
+
+    class _Cb(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self._last_t = time.time()
+            self._last_n = start_steps
+
+        def _on_step(self) -> bool:
+            n = self.model.num_timesteps
+            if n % log_every == 0:
+                now = time.time()
+                rate = (n - self._last_n) / max(now - self._last_t, 1e-9)
+                self._last_t, self._last_n = now, n
+                eps = list(self.model.ep_info_buffer)[-10:]
+                ret = sum(e["r"] for e in eps) / len(eps) if eps else float("nan")
+                ln = sum(e["l"] for e in eps) / len(eps) if eps else float("nan")
+                log(f"steps {n}/{total_steps} rate {rate:.1f}/s ep_return(last{len(eps)}) {ret:.2f} "
+                    f"ep_len {ln:.0f}")
+            if n % checkpoint_every == 0 and n < total_steps:
+                _save_checkpoint(self.model, out_dir, make_state(n))
+                write_budget(n, "running")
+            if deadline is not None and time.time() >= deadline:
+                stop["deadline"] = True
+            return not (stop["flag"] or stop["deadline"])
+
+    remaining = int(total_steps) - start_steps
+    try:
+        if deadline is not None and time.time() >= deadline:
+            stop["deadline"] = True
+        elif remaining > 0:
+            write_budget(start_steps, "running")
+            model.learn(total_timesteps=remaining, callback=_Cb(), reset_num_timesteps=False,
+                        log_interval=10**9, progress_bar=False)
+    finally:
+        for sig, h in old_handlers.items():
+            signal.signal(sig, h)
+    done = int(model.num_timesteps)
+    if done < total_steps and (stop["flag"] or not stop["deadline"]):
+        _save_checkpoint(model, out_dir, make_state(done))
+        write_budget(done, "interrupted")
+        log(f"interrupted at step {done}; checkpoint written")
+        env.close()
+        raise KeyboardInterrupt(f"SAC training interrupted at step {done}/{total_steps}; rerun to resume")
+
+    _atomic_model_save(model, out_dir / "final_model.zip")
+    _atomic_model_save(model.policy, out_dir / "policy.zip")
+    status = "complete" if done >= total_steps else "deadline"
+    write_budget(done, status)
+    if status == "deadline":
+        log(f"deadline reached at step {done}/{total_steps}; policy finalised with the steps done")
+    # keep the last checkpoint only if the caller may want to extend training
+    _save_checkpoint(model, out_dir, make_state(done))
+    log(f"done: {done} steps, policy at {out_dir / 'policy.zip'}")
+    env.close()
+    return out_dir / "policy.zip"

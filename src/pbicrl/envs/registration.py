@@ -1,0 +1,43 @@
+"""Gymnasium ids for the pbicrl navigation environments.
+
+:func:`register_envs` registers (idempotently, with lazy ``"module:Class"`` entry points):
+
+=============================== ==============================================
+id                              class
+=============================== ==============================================
+``pbicrl/PointMass-v0``         :class:`pbicrl.envs.point_mass.PointMassEnv`
+``pbicrl/FetchReachConstrained-v0`` :class:`pbicrl.envs.fetch_reach.FetchReachConstrainedEnv`
+``pbicrl/Grid3x3-v0``           :class:`pbicrl.envs.grid.GridEnv`
+=============================== ==============================================
+
+Time limits are handled inside the environments (``truncated``), so no ``TimeLimit``
+wrapper is added.
+"""
+
+from __future__ import annotations
+
+__all__ = ["ENV_IDS", "register_envs"]
+
+ENV_IDS: dict[str, str] = {
+    "pbicrl/PointMass-v0": "pbicrl.envs.point_mass:PointMassEnv",
+    "pbicrl/FetchReachConstrained-v0": "pbicrl.envs.fetch_reach:FetchReachConstrainedEnv",
+    "pbicrl/Grid3x3-v0": "pbicrl.envs.grid:GridEnv",
+}
+
+
+def register_envs() -> list[str]:
+    """Register the ids above with Gymnasium (no-op for ids already registered).
+
+    Returns
+    -------
+    list of str
+        The registered ids.
+    """
+    try:
+        import gymnasium as gym
+    except ImportError as exc:
+        raise ImportError('registering environments needs gymnasium: pip install "pbicrl[envs]"') from exc
+    for env_id, entry in ENV_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=entry, disable_env_checker=True)
+    return list(ENV_IDS)

@@ -1,0 +1,155 @@
+"""Resumable SAC trainer: smoke run, resume, interruption, warm start, validation, CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+pytest.importorskip("torch")
+pytest.importorskip("stable_baselines3")
+
+from pbicrl.demonstrators.sac import load_policy, train_sac
+
+TINY = {"net_arch": (16, 16), "buffer_size": 1000, "batch_size": 32, "learning_starts": 100,
+        "checkpoint_every": 100, "log_every": 100, "progress": False}
+
+
+def _pendulum():
+    return gym.make("Pendulum-v1", max_episode_steps=100)
+
+
+def test_smoke_run_writes_policy_budget_and_log(tmp_path):
+    out = tmp_path / "run"
+    path = train_sac(_pendulum, 300, out, seed=1, metadata={"env": "Pendulum-v1"}, **TINY)
+    assert path == out / "policy.zip" and path.is_file()
+    assert (out / "final_model.zip").is_file()
+    budget = json.loads((out / "budget.json").read_text())
+    assert budget["requested_steps"] == 300 and budget["done_steps"] == 300
+    assert budget["status"] == "complete"
+    assert budget["hyperparameters"]["net_arch"] == [16, 16]
+    assert budget["hyperparameters"]["learning_rate"] == 3e-4
+    assert budget["metadata"] == {"env": "Pendulum-v1"}
+    assert "torch" in budget["versions"] and "stable_baselines3" in budget["versions"]
+    assert budget["wall_time_s"] > 0
+    log = (out / "progress.log").read_text().splitlines()
+    assert any("steps 300/300" in line for line in log)
+    # the shipped policy has no replay buffer and acts on observations
+    assert path.stat().st_size < (out / "final_model.zip").stat().st_size
+    policy = load_policy(path)
+    env = _pendulum()
+    obs, _ = env.reset(seed=0)
+    a, _ = policy.predict(obs, deterministic=True)
+    assert a.shape == (1,) and env.action_space.contains(a.astype(np.float32))
+    env.close()
+
+
+def test_resume_continues_from_checkpoint(tmp_path):
+    out = tmp_path / "run"
+    train_sac(_pendulum, 200, out, seed=2, **TINY)
+    first = json.loads((out / "checkpoint" / "state.json").read_text())
+    assert first["num_timesteps"] == 200
+    train_sac(_pendulum, 350, out, seed=2, **TINY)
+    budget = json.loads((out / "budget.json").read_text())
+    assert budget["done_steps"] == 350
+    assert [(s["start_step"], s["end_step"]) for s in budget["sessions"]] == [(0, 200), (200, 350)]
+    assert "resume from checkpoint at step 200" in (out / "progress.log").read_text()
+
+
+def test_sigterm_writes_checkpoint_then_resume_finishes(tmp_path):
+    out = tmp_path / "run"
+    timer = threading.Timer(1.5, os.kill, args=(os.getpid(), signal.SIGTERM))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt, match="interrupted at step"):
+            train_sac(_pendulum, 200_000, out, seed=3, **TINY)
+    finally:
+        timer.cancel()
+    budget = json.loads((out / "budget.json").read_text())
+    assert budget["status"] == "interrupted"
+    done = budget["done_steps"]
+    assert 0 < done < 200_000
+    assert json.loads((out / "checkpoint" / "state.json").read_text())["num_timesteps"] == done
+    assert not (out / "policy.zip").exists()
+    train_sac(_pendulum, done + 20, out, seed=3, **TINY)
+    assert json.loads((out / "budget.json").read_text())["status"] == "complete"
+    assert (out / "policy.zip").is_file()
+
+
+def test_deadline_finalises_policy_early_and_resume_extends(tmp_path):
+    import time
+
+    out = tmp_path / "run"
+    train_sac(_pendulum, 200_000, out, seed=6, deadline=time.time() + 1.0, **TINY)
+    budget = json.loads((out / "budget.json").read_text())
+    assert budget["status"] == "deadline"
+    done = budget["done_steps"]
+    assert 0 < done < 200_000
+    assert (out / "policy.zip").is_file()
+    train_sac(_pendulum, done + 30, out, seed=6, **TINY)
+    budget = json.loads((out / "budget.json").read_text())
+    assert budget["status"] == "complete" and budget["done_steps"] == done + 30
+    with pytest.raises(ValueError, match="deadline"):
+        train_sac(_pendulum, 10, tmp_path / "r", deadline=float("nan"), **TINY)
+
+
+def test_warm_start_copies_networks(tmp_path):
+    src = tmp_path / "src"
+    train_sac(_pendulum, 150, src, seed=4, **TINY)
+    from stable_baselines3 import SAC
+
+    dst = tmp_path / "dst"
+    # zero training updates after the warm start: learning_starts > total steps
+    train_sac(_pendulum, 50, dst, seed=5, init_from=src / "final_model.zip",
+              **{**TINY, "learning_starts": 1000})
+    a = SAC.load(src / "final_model.zip").policy.state_dict()
+    b = SAC.load(dst / "final_model.zip").policy.state_dict()
+    for k in a:
+        np.testing.assert_array_equal(a[k].numpy(), b[k].numpy())
+    assert json.loads((dst / "budget.json").read_text())["done_steps"] == 50
+
+
+@pytest.mark.parametrize("kw, name", [({"total_steps": 0}, "total_steps"), ({"batch_size": 0}, "batch_size"),
+                                      ({"learning_rate": -1.0}, "learning_rate"), ({"net_arch": ()}, "net_arch")])
+def test_bad_options_name_the_option(tmp_path, kw, name):
+    args = {"total_steps": 10, **kw}
+    total = args.pop("total_steps")
+    with pytest.raises(ValueError, match=name):
+        train_sac(_pendulum, total, tmp_path / "r", **{**TINY, **args})
+
+
+def test_init_from_missing_file(tmp_path):
+    with pytest.raises(ValueError, match="init_from"):
+        train_sac(_pendulum, 10, tmp_path / "r", init_from=tmp_path / "nope.zip", **TINY)
+
+
+def test_load_policy_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="policy"):
+        load_policy(tmp_path / "missing.zip")
+
+
+def test_cli_parser_mounts_and_validates():
+    import argparse
+
+    from pbicrl.demonstrators.cli import add_subcommands, build_parser
+
+    parent = argparse.ArgumentParser(prog="pbicrl")
+    sub = parent.add_subparsers(dest="cmd")
+    add_subcommands(sub)
+    args = parent.parse_args(["train-wall", "--env", "ant", "--mode", "good", "--steps", "100", "--out", "x"])
+    assert args.env == "ant" and args.steps == 100 and callable(args.func) and args.deadline is None
+    args = parent.parse_args(["train-wall", "--env", "ant", "--mode", "good", "--steps", "100", "--out", "x",
+                              "--deadline", "2026-11-22T02:10:00Z"])
+    assert args.deadline == 1795313400.0
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["train-wall", "--env", "ant", "--mode", "good", "--steps", "1", "--out", "x",
+                                   "--deadline", "soon"])
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["train-wall", "--env", "hopper", "--mode", "good", "--steps", "1", "--out", "x"])
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["train-wall", "--env", "ant", "--mode", "good", "--steps", "0", "--out", "x"])
