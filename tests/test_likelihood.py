@@ -7,7 +7,7 @@ import pytest
 
 from pbicrl.data import Dataset
 from pbicrl.likelihood import PreferenceLikelihood, log_likelihood, log_likelihood_numpy
-from pbicrl.preferences import Margins, Preferences
+from pbicrl.preferences import Preferences
 
 
 def oracle(F, group, wn, wp, c, beta, margins):

@@ -10,82 +10,23 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from typing import Any, Sequence
 
-__all__ = ["main", "build_parser"]
+from pbicrl._argtypes import floats as _floats
+from pbicrl._argtypes import margins as _margins
+from pbicrl._argtypes import nonneg_int as _nonneg_int
+from pbicrl._argtypes import pairs as _pairs
+from pbicrl._argtypes import positive_float as _positive_float
+from pbicrl._argtypes import positive_int as _positive_int
+from pbicrl._argtypes import power as _power
+
+__all__ = ["build_parser", "main"]
 
 _USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, ImportError)
-
-
-def _floats(text: str) -> list[float]:
-    try:
-        return [float(x) for x in text.replace(",", " ").split()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
-
-def _margins(text: str) -> list:
-    """'0,2.9' (gaps) or '0,0,6;0,0,2.9;0,0,0' (matrix rows separated by ';')."""
-    if ";" in text:
-        return [_floats(row) for row in text.split(";")]
-    return _floats(text)
-
-
-def _pairs(text: str) -> str | int:
-    if text == "all":
-        return "all"
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 'all' or a positive integer, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected 'all' or a positive integer, got {text!r}")
-    return n
-
-
-def _power(text: str) -> float | str:
-    if text == "pairs":
-        return text
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1] or 'pairs', got {text!r}") from None
-    if not 0 < x <= 1:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1] or 'pairs', got {text!r}")
-    return x
-
-
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return n
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        n = int(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return n
-
-
-def _positive_float(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not x > 0 or x != x or x == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return x
 
 
 def _add_infer(sub: Any) -> None:

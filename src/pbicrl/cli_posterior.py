@@ -15,24 +15,14 @@ import json
 from pathlib import Path
 from typing import Any
 
+from pbicrl._argtypes import floats as _floats
+from pbicrl._argtypes import positive_int as _positive_int
+
 __all__ = ["add_subcommands"]
 
 
-def _floats(text: str) -> list[float]:
-    try:
-        return [float(x) for x in text.replace(",", " ").split()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
 
 
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return n
 
 
 # ---------------------------------------------------------------------------------------------- diagnose

@@ -241,7 +241,6 @@ def exp_grid(ctx: Context) -> Path:
 def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     from pbicrl.data import load_dataset
     from pbicrl.margins import relation_error, tune_margins
-    from pbicrl.preferences import Margins
 
     dataset = ctx.dataset(dataset)
     paper = PAPER[name]
@@ -300,9 +299,9 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
         m_s = W.mean(0), W.std(0)
         lines.append(f"| {label} | " + " | ".join(_fmt_ms(a, b) for a, b in zip(*m_s)) +
                      f" | {exact} | {within}/{len(rr)} |")
-    lines += ["", f"Targets (issue): exact set in 5/5 seeds; with tuned margins MAP penalties within 15% of the truth. "
+    lines += ["", "Targets (issue): exact set in 5/5 seeds; with tuned margins MAP penalties within 15% of the truth. "
               "The paper shows these results as bar plots (Figs. 3b/4b); it prints no numbers to compare beyond the truth.",
-              f"Runtime per chain: " + ", ".join(f"{k}: {_fmt_ms(*v['runtime_s'])} s" for k, v in rows.items()) + "."]
+              "Runtime per chain: " + ", ".join(f"{k}: {_fmt_ms(*v['runtime_s'])} s" for k, v in rows.items()) + "."]
     ds_rel = {"true": tuning.group_means.tolist()}
 
     def figures(d: Path) -> list[str]:

@@ -37,14 +37,23 @@ import os
 import sys
 import time
 import tomllib
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
-from pbicrl.experiments.tasks import (RESULT_FILE, Task, TaskError, canonical_json, clean_stale_temp_dirs, find_done,
-                                      get_task_kind)
+from pbicrl._argtypes import positive_int as _positive_int
+from pbicrl.experiments.tasks import (
+    RESULT_FILE,
+    Task,
+    TaskError,
+    canonical_json,
+    clean_stale_temp_dirs,
+    find_done,
+    get_task_kind,
+)
 
-__all__ = ["RunRecord", "SweepResult", "SweepSpec", "expand_grid", "load_sweep", "run_tasks", "add_subcommands"]
+__all__ = ["RunRecord", "SweepResult", "SweepSpec", "add_subcommands", "expand_grid", "load_sweep", "run_tasks"]
 
 _MANIFEST = "sweep.json"
 
@@ -451,14 +460,6 @@ def add_subcommands(sub: Any) -> None:
     p.set_defaults(func=_cmd_sweep)
 
 
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return n
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
