@@ -214,7 +214,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Subcommands contributed by other subpackages; each module exposes add_subcommands(subparsers) and must not
 # import optional dependencies at module level.
-_EXTENSIONS: tuple[str, ...] = ("pbicrl.experiments.sweep", "pbicrl.experiments.reproduce", "pbicrl.cli_posterior")
+_EXTENSIONS: tuple[str, ...] = ("pbicrl.experiments.sweep", "pbicrl.experiments.reproduce", "pbicrl.cli_posterior",
+                                "pbicrl.cli_envs")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -58,16 +58,33 @@ def test_navigation_dataset_groups_match_states(name):
     assert report["group_counts"] == {f"G{k}": v for k, v in counts.items()}
 
 
-@pytest.mark.parametrize("name", ["point_mass_good", "point_mass_violating", "fetch_reach_good", "fetch_reach_violating"])
-def test_shipped_policies_exist_and_load(name):
-    path = DATA / "policies" / f"{name}.zip"
+def _shipped_policies():
+    out = []
+    for name in ("point_mass", "fetch_reach"):
+        report = json.loads((DATA / f"{name}.json").read_text())
+        out += [(name, role, Path(r["policy"]).name) for role, r in report["rollouts"].items()]
+    return out
+
+
+@pytest.mark.parametrize(("env", "role", "file"), _shipped_policies())
+def test_policies_behind_the_datasets_are_shipped_and_load(env, role, file):
+    path = DATA / "policies" / file
+    assert file == f"{env}_{role}.zip"
     assert path.stat().st_size < 4 * MB
     budget = json.loads(path.with_suffix(".budget.json").read_text())
     assert budget["status"] == "complete" and budget["done_steps"] > 0
+    assert budget["metadata"]["reward_weights"] == ("true" if role == "good" else "nominal")
     pytest.importorskip("stable_baselines3")
     from pbicrl.demonstrators.sac import load_policy
 
     policy = load_policy(path)
-    dim = 2 if name.startswith("point_mass") else 3
+    dim = 2 if env == "point_mass" else 3
     action, _ = policy.predict(np.zeros(dim, dtype=np.float32), deterministic=True)
     assert action.shape == (dim,) and np.all(np.abs(action) <= 1.0)
+
+
+def test_point_mass_good_policy_is_shipped_and_g1_comes_from_it():
+    report = json.loads((DATA / "point_mass.json").read_text())
+    assert report["g1_source"].startswith("good")
+    assert report["rollouts"]["good"]["group_of_rollouts"]["G2"] == 0
+    assert report["rollouts"]["good"]["group_of_rollouts"]["G3"] == 0

@@ -34,13 +34,13 @@ from numpy.typing import NDArray
 from pbicrl.data import Dataset
 
 __all__ = [
-    "relabelled_warm_start",
     "NAV_ENVS",
     "Episode",
     "NavEnvSpec",
     "generate_navigation_demos",
     "make_nav_env",
     "plot_navigation_demos",
+    "relabelled_warm_start",
     "rollout_episodes",
     "train_nav_policy",
 ]

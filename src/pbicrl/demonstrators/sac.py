@@ -298,6 +298,11 @@ def train_sac(
                         policy_kwargs={**(policy_kwargs or {}), "net_arch": net_arch}, seed=seed,
                         device="cpu", verbose=0)
             log("new run")
+    # record what the model actually uses: a resumed (or externally prepared) checkpoint keeps
+    # its own settings, whatever was passed to this call
+    hyper.update(tau=float(model.tau), gamma=float(model.gamma), batch_size=int(model.batch_size),
+                 buffer_size=int(model.buffer_size), learning_starts=int(model.learning_starts),
+                 ent_coef=model.ent_coef if isinstance(model.ent_coef, str) else float(model.ent_coef))
     session_idx = len(sessions)
     model.set_random_seed(seed + 1000 * session_idx)
     env.reset(seed=seed + 1000 * session_idx)

@@ -18,7 +18,7 @@ exact budgets)::
     python -m pbicrl.envs demos --env point_mass --out src/pbicrl/data/point_mass.npz
     python -m pbicrl.envs plot --env point_mass --dataset src/pbicrl/data/point_mass.npz \
         --out docs/figures/point_mass_demos.png
-    (the same for --env fetch_reach with --steps 12000 / 20000)
+    (the same for --env fetch_reach with --steps 12000 / 40000)
 """
 
 from __future__ import annotations
@@ -144,7 +144,16 @@ def _cmd_minari_to_npz(args: argparse.Namespace) -> int:
     from pbicrl.envs.minari_io import minari_to_dataset
     from pbicrl.envs.regions import FEATURE_NAMES
 
-    print(minari_to_dataset(args.id, args.root, feature_names=FEATURE_NAMES).save(args.out))
+    nominal = None
+    if args.env == "point_mass":
+        from pbicrl.envs.point_mass import POINT_MASS_TASK
+
+        nominal = POINT_MASS_TASK.nominal_weights
+    elif args.env == "fetch_reach":
+        from pbicrl.envs.fetch_reach import FETCH_REACH_TASK  # needs gymnasium only, not mujoco
+
+        nominal = FETCH_REACH_TASK.nominal_weights
+    print(minari_to_dataset(args.id, args.root, feature_names=FEATURE_NAMES, nominal_weights=nominal).save(args.out))
     return 0
 
 
@@ -209,6 +218,7 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("minari-to-npz", help="convert a local Minari dataset to .npz")
     p.add_argument("--id", required=True)
     p.add_argument("--root", type=Path, default=None)
+    p.add_argument("--env", choices=envs, default=None, help="store this environment's nominal weights")
     p.add_argument("--out", required=True, type=Path)
     p.set_defaults(func=_cmd_minari_to_npz)
 
