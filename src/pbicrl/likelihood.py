@@ -125,7 +125,7 @@ class PreferenceLikelihood:
         n = self._scratch_size
         N = self.mean_features.shape[0]
         return (p.block_rows, p.block_row_offsets, p.block_cols, p.block_col_offsets, p.block_margins,
-                p.pair_i, p.pair_j, p.pair_margins, np.empty(n), np.empty(n), np.empty(n), np.empty(N), np.empty(N))
+                p.pair_i, p.pair_j, p.pair_margins, _aligned(n), _aligned(n), _aligned(n), _aligned(N), _aligned(N))
 
     def weights(self, penalty_weights: ArrayLike, indicators: ArrayLike | None = None) -> NDArray[np.float64]:
         """Total weights :math:`w_n + c \\circ w_p`."""
@@ -145,6 +145,18 @@ class PreferenceLikelihood:
     def from_scaled_returns(self, a: ArrayLike) -> float:
         """Log-likelihood for given scaled returns :math:`a` (N,)."""
         return self.power * float(_kernels.total_loglik(np.ascontiguousarray(a, dtype=np.float64), *self.kernel_args()))
+
+
+def _aligned(n: int, align: int = 64) -> NDArray[np.float64]:
+    """Empty float64 buffer starting on an ``align``-byte boundary.
+
+    The compiled reductions are vectorised with re-association; LLVM peels loop iterations to reach an
+    aligned address, so the summation order, and the last bit of the result, would otherwise depend on
+    where the allocator put the buffer (seen as 1-ulp differences between processes).
+    """
+    raw = np.empty(n + align // 8, dtype=np.float64)
+    start = (-raw.ctypes.data % align) // 8
+    return raw[start:start + n]
 
 
 def pairwise_power(preferences: Preferences) -> float:
