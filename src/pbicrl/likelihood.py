@@ -139,7 +139,10 @@ class PreferenceLikelihood:
 
     def __call__(self, penalty_weights: ArrayLike, indicators: ArrayLike | None = None) -> float:
         """:math:`\\mathcal{L}(w_p, c)`; ``indicators`` default to all ones (BPL)."""
-        a = self.beta * self.returns(penalty_weights, indicators)
+        w = self.weights(penalty_weights, indicators)
+        a = np.zeros(self.mean_features.shape[0])
+        for j in range(w.size):  # fixed summation order (no BLAS), see samplers.kernels._returns
+            a += w[j] * self.scaled_features_T[j]
         return self.power * float(_kernels.total_loglik(a, *self.kernel_args()))
 
     def from_scaled_returns(self, a: ArrayLike) -> float:

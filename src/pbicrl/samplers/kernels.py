@@ -340,7 +340,7 @@ class Kernel:
             theta = qt_mu = qt_s = sig_t = np.zeros(0)
         FbT = self._columns(theta)
         wn = np.concatenate([lik.nominal_weights, np.zeros(d - self.d_known)])
-        a = FbT.T @ (wn + c * w)
+        a = _returns(FbT, wn + c * w)
         ll = lik.from_scaled_returns(a)
         lp = self._log_prior(c, w, theta)
         sigma = np.full(d, float(s.sigma))
@@ -401,6 +401,18 @@ class Kernel:
         dc = new.counts - state.counts
         move = "flip" if dc[0] else ("weight" if dc[2] else ("parameter" if dc[5] else "none"))
         return new, StepInfo(move, bool(dc[1] or dc[3] or dc[6]), new.log_likelihood)
+
+
+def _returns(FbT: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:math:`a = (\\beta\\bar\\Phi) w` summed feature by feature, in a fixed order.
+
+    Not a BLAS matrix product: its summation order depends on the BLAS thread count (Ray workers run with one
+    thread), and a 1-ulp difference in the initial returns is enough to make chains differ between executors.
+    """
+    a = np.zeros(FbT.shape[1])
+    for j in range(FbT.shape[0]):
+        a += weights[j] * FbT[j]
+    return a
 
 
 def _copy_state(s: ChainState) -> ChainState:
