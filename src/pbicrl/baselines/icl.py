@@ -846,7 +846,8 @@ def run_icl_task(config: dict, out_dir: Path) -> dict[str, Any]:
 
     Config keys: ``env`` (``halfcheetah``/``ant``/``point_mass``), ``dataset`` (path to a
     :class:`pbicrl.data.Dataset` with states; or ``"scripted"`` for the point mass's scripted expert),
-    ``budget`` (preset name) and/or ``icl`` (dict of :class:`ICLConfig` overrides), ``seed``, ``n_expert``
+    ``budget`` (preset name) and/or ``icl`` (dict of :class:`ICLConfig` overrides), ``budget_sha256`` (ignored
+    here: lets a caller hash the preset's values into the task), ``seed``, ``n_expert``
     (default 200), ``expert_group`` (default 1), ``sample_seed``, ``checkpoint_dir`` (a directory that
     outlives the task's temporary output directory so an interrupted task resumes; default: inside
     ``out_dir``, i.e. no resume).

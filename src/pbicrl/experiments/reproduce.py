@@ -387,6 +387,7 @@ def _wall(ctx: Context, name: str, dataset: str) -> Path:
         thetas = [r["map_parameters"][0] for r, _ in rr]
         errs = [cmse_location(t, paper["wall"]) if t is not None else math.inf for t in thetas]
         table[n] = {"cmse": _ms(errs) if all(map(math.isfinite, errs)) else (math.inf, math.inf), "theta": thetas,
+                    "wall_off_seeds": int(sum(t is None for t in thetas)),
                     "penalty": [r["map_effective_penalty"][-1] for r, _ in rr], "runtime_s": _ms([r["runtime_s"] for r, _ in rr]),
                     "n_pairs": rr[0][0]["n_pairs"]}
     t100 = table[100]
@@ -402,7 +403,8 @@ def _wall(ctx: Context, name: str, dataset: str) -> Path:
         lines.append(f"| {n} | {_fmt_ms(*table[n]['cmse'])} | {_fmt_ms(*paper['sensitivity'][n])} |")
     target_ok = t100["cmse"][0] <= paper["cmse"][0]
     lines += ["", f"Target (issue): CMSE at or below the paper's ({paper['cmse'][0]}): {'met' if target_ok else 'missed'} "
-              f"(ours {t100['cmse'][0]:.3g}). MAP thetas at 100 per group: {np.round(t100['theta'], 3).tolist()}; "
+              f"(ours {t100['cmse'][0]:.3g}). MAP thetas at 100 per group: "
+              f"{[('off' if t is None else round(t, 3)) for t in t100['theta']]} ('off': the MAP has no wall, CMSE undefined); "
               f"MAP penalties: {np.round(t100['penalty'], 1).tolist()} (true {paper['penalty']}). "
               "Runtimes are per chain on this machine, the paper's on theirs."]
     return _write_report(ctx, name, f"{name}: where is the wall?", lines,
@@ -534,6 +536,7 @@ def exp_icl(ctx: Context) -> Path:
     the environment variable ``PBICRL_ICL_BUDGET`` (``smoke``, ``default`` - about 45 min per HalfCheetah seed
     on 2 cores - or ``paper``). Each ICL seed is a resumable task (checkpoints under ``<out>/icl/checkpoints``).
     """
+    import hashlib
     import os
 
     from pbicrl.experiments.sweep import run_tasks
@@ -579,9 +582,12 @@ def exp_icl(ctx: Context) -> Path:
         pb_grid = [cmse_grid(truth, halfspace_indicator(t)(grid) if t is not None else np.zeros_like(grid)) for t in pb_theta]
         cfg = icl_preset(budget, name)
         sha = _file_sha256(Path(dataset))[:12]
+        # the preset's values are hashed too: retuning a preset must not reuse results (or checkpoints) of the old one
+        cfg_sha = hashlib.sha256(json.dumps(cfg.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
         tasks = [Task("reproduce-icl",
-                      {"env": name, "dataset": dataset, "budget": budget, "seed": s, "n_expert": 200, "sample_seed": s,
-                       "checkpoint_dir": str(ctx.out / "icl" / "checkpoints" / f"{name}-{budget}-s{s}-{sha}")},
+                      {"env": name, "dataset": dataset, "budget": budget, "budget_sha256": cfg_sha, "seed": s,
+                       "n_expert": 200, "sample_seed": s,
+                       "checkpoint_dir": str(ctx.out / "icl" / "checkpoints" / f"{name}-{budget}-s{s}-{sha}-{cfg_sha}")},
                       name=f"icl-{name}-{budget}") for s in range(ctx.seeds)]
         res = run_tasks(tasks, ctx.out / "runs", ctx.executor, workers=ctx.workers, progress=ctx.progress, manifest=False)
         icl = []
