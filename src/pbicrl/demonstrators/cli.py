@@ -19,17 +19,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from pbicrl._argtypes import positive_int as _positive_int
+
 __all__ = ["add_subcommands", "build_parser", "main"]
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
-    return v
 
 
 def _utc_time(text: str) -> float:

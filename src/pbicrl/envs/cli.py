@@ -31,6 +31,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from pbicrl._argtypes import positive_int as _positive_int
+
 __all__ = ["DATA_DIR", "add_subcommands", "build_parser", "main", "shipped_policy"]
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
@@ -42,16 +44,6 @@ def shipped_policy(env: str, role: str) -> Path:
     if role not in ("good", "violating"):
         raise ValueError(f"role: expected 'good' or 'violating', got {role!r}")
     return DATA_DIR / "policies" / f"{env}_{role}.zip"
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
-    return v
 
 
 def _copy_atomic(src: Path, dst: Path) -> None:
