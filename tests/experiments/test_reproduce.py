@@ -48,3 +48,20 @@ def test_unknown_experiment():
     with pytest.raises(ValueError, match="unknown"):
         reproduce("moon", progress=False)
     assert "sensitivity" in EXPERIMENTS
+
+
+def test_sensitivity_fetch_ant_smoke(tmp_path, stand_ins):
+    for name in ("fetch-reach", "ant", "sensitivity"):
+        reproduce(name, out=tmp_path, iterations=2000, seeds=1, executor="serial", progress=False, datasets=stand_ins)
+        assert (tmp_path / name / "report.md").exists()
+    sens = json.loads((tmp_path / "sensitivity" / "results.json").read_text())
+    assert set(sens["point-mass"]) == {"20", "60", "100"}
+
+
+@pytest.mark.slow
+def test_reproduce_all_full(tmp_path):
+    """The full reproduction on the shipped demonstrations (about 3 minutes on 2 cores)."""
+    reports = reproduce("all", out=tmp_path, progress=False)
+    assert {p.parent.name for p in reports} == {"grid", "point-mass", "fetch-reach", "halfcheetah", "ant", "sensitivity"}
+    pm = json.loads((tmp_path / "point-mass" / "results.json").read_text())
+    assert pm["iterations"] == 400_000 and pm["seeds"] == 5
