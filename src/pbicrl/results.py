@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from pbicrl.diagnostics import Diagnostics
     from pbicrl.samplers.kernels import Kernel
 
-__all__ = ["Posterior", "split_rhat", "write_run_dir"]
+__all__ = ["Posterior", "DrawsView", "split_rhat", "write_run_dir"]
 
 
 def split_rhat(x: NDArray[np.float64]) -> float:
@@ -41,8 +41,47 @@ def split_rhat(x: NDArray[np.float64]) -> float:
     return float(np.sqrt(var / W)) if m > 1 else float("nan")
 
 
+class DrawsView:
+    """Views shared by every holder of draws (:class:`Posterior`, :class:`pbicrl.runs.RunRecord`).
+
+    Needs ``indicators`` and ``penalty_weights`` (chains, draws, d) and ``map_indicators``,
+    ``map_penalty_weights`` (d,).
+    """
+
+    indicators: NDArray[np.int8]
+    penalty_weights: NDArray[np.float64]
+    map_indicators: NDArray[np.int8]
+    map_penalty_weights: NDArray[np.float64]
+
+    @property
+    def n_chains(self) -> int:
+        return int(self.indicators.shape[0])
+
+    @property
+    def n_draws(self) -> int:
+        return int(self.indicators.shape[1])
+
+    @property
+    def n_features(self) -> int:
+        return int(self.indicators.shape[2])
+
+    @property
+    def effective_penalty(self) -> NDArray[np.float64]:
+        """Draws of :math:`c \\circ w_p`, (chains, draws, d)."""
+        return self.indicators * self.penalty_weights
+
+    @property
+    def map_effective_penalty(self) -> NDArray[np.float64]:
+        return self.map_indicators * self.map_penalty_weights
+
+    @property
+    def p_constraint(self) -> NDArray[np.float64]:
+        """:math:`P(c_j = 1 \\mid \\mathcal{D})`, (d,)."""
+        return self.indicators.reshape(-1, self.n_features).mean(axis=0)
+
+
 @dataclass(frozen=True, eq=False)
-class Posterior:
+class Posterior(DrawsView):
     """Draws of :math:`(c, w_p)` from one or more chains, with MAP and run metadata.
 
     Attributes
@@ -132,34 +171,7 @@ class Posterior:
             parameter_owner=owner,
         )
 
-    # ------------------------------------------------------------------ shapes
-    @property
-    def n_chains(self) -> int:
-        return int(self.indicators.shape[0])
-
-    @property
-    def n_draws(self) -> int:
-        return int(self.indicators.shape[1])
-
-    @property
-    def n_features(self) -> int:
-        return int(self.indicators.shape[2])
-
     # ------------------------------------------------------------------ summaries
-    @property
-    def effective_penalty(self) -> NDArray[np.float64]:
-        """Draws of :math:`c \\circ w_p`, (chains, draws, d)."""
-        return self.indicators * self.penalty_weights
-
-    @property
-    def map_effective_penalty(self) -> NDArray[np.float64]:
-        return self.map_indicators * self.map_penalty_weights
-
-    @property
-    def p_constraint(self) -> NDArray[np.float64]:
-        """:math:`P(c_j = 1 \\mid \\mathcal{D})`, (d,)."""
-        return self.indicators.reshape(-1, self.n_features).mean(axis=0)
-
     @property
     def mean_effective_penalty(self) -> NDArray[np.float64]:
         """Posterior mean of :math:`c_j w_{p,j}`, (d,)."""

@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.results import DrawsView
+
 __all__ = ["RunRecord", "RunError", "load_run"]
 
 
@@ -26,7 +28,7 @@ class RunError(ValueError):
 
 
 @dataclass(frozen=True, eq=False)
-class RunRecord:
+class RunRecord(DrawsView):
     """Draws and summary of a finished run.
 
     Attributes
@@ -79,30 +81,6 @@ class RunRecord:
     @property
     def seed(self) -> int:
         return int(self.summary.get("seed", 0))
-
-    @property
-    def n_chains(self) -> int:
-        return int(self.indicators.shape[0])
-
-    @property
-    def n_draws(self) -> int:
-        return int(self.indicators.shape[1])
-
-    @property
-    def n_features(self) -> int:
-        return int(self.indicators.shape[2])
-
-    @property
-    def effective_penalty(self) -> NDArray[np.float64]:
-        return self.indicators * self.penalty_weights
-
-    @property
-    def map_effective_penalty(self) -> NDArray[np.float64]:
-        return self.map_indicators * self.map_penalty_weights
-
-    @property
-    def p_constraint(self) -> NDArray[np.float64]:
-        return self.indicators.reshape(-1, self.n_features).mean(axis=0)
 
     @property
     def data_path(self) -> Path | None:
