@@ -37,6 +37,23 @@ def _utc_time(text: str) -> float:
     return dt.timestamp()
 
 
+def _ent_coef(text: str) -> float | str:
+    if text == "auto" or text.startswith("auto_"):
+        try:
+            if text != "auto":
+                float(text[5:])
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected auto, auto_<number> or a number, got {text!r}") from None
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, auto_<number> or a number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
 def _cmd_train_wall(args: argparse.Namespace) -> int:
     from pbicrl.demonstrators.wall import train_wall_policy
 
@@ -44,7 +61,8 @@ def _cmd_train_wall(args: argparse.Namespace) -> int:
               "net_arch": tuple(args.net_arch), "buffer_size": args.buffer_size,
               "learning_starts": args.learning_starts, "checkpoint_every": args.checkpoint_every,
               "log_every": args.log_every, "torch_threads": args.torch_threads,
-              "init_from": args.init_from, "progress": not args.quiet, "deadline": args.deadline}
+              "init_from": args.init_from, "progress": not args.quiet, "deadline": args.deadline,
+              "ent_coef": args.ent_coef}
     try:
         path = train_wall_policy(args.env, args.mode, args.steps, args.out, **kwargs)
     except KeyboardInterrupt as exc:
@@ -98,7 +116,10 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint-every", type=_positive_int, default=10_000)
     p.add_argument("--log-every", type=_positive_int, default=2_000)
     p.add_argument("--torch-threads", type=_positive_int, default=1)
-    p.add_argument("--init-from", type=Path, default=None, help="warm start from an SB3 model zip")
+    p.add_argument("--init-from", type=Path, default=None,
+                   help="warm start from an SB3 model zip or a policy-only policy.zip")
+    p.add_argument("--ent-coef", type=_ent_coef, default="auto",
+                   help="SAC entropy coefficient: auto, auto_<initial> (e.g. auto_0.05) or a number")
     p.add_argument("--deadline", type=_utc_time, default=None,
                    help="UTC time (e.g. 2026-11-22T02:10:00Z) at which to stop and finalise the policy early")
     p.add_argument("--quiet", action="store_true", help="do not echo progress to stderr")

@@ -90,6 +90,17 @@ def _write_json_atomic(path: Path, obj: Any) -> None:
         raise
 
 
+def _is_policy_only(path: Path) -> bool:
+    """True for a ``policy.zip`` written by ``policy.save`` (no SB3 ``data`` member)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return "data" not in zf.namelist()
+    except zipfile.BadZipFile:
+        return True
+
+
 def _find_checkpoint(out_dir: Path) -> Path | None:
     for name in (_CKPT, _CKPT_OLD):
         d = out_dir / name
@@ -192,8 +203,9 @@ def train_sac(
     torch_threads : int
         ``torch.set_num_threads`` value (1 is fastest for these small networks on a shared CPU).
     init_from : path, optional
-        SB3 model zip (e.g. another run's ``final_model.zip``) whose networks initialise a
-        fresh run (warm start; its replay buffer is not used). Ignored when resuming.
+        SB3 model zip (e.g. another run's ``final_model.zip``) or a policy-only ``policy.zip``
+        (e.g. a shipped demonstrator) whose networks initialise a fresh run (warm start; no
+        replay buffer or optimiser state is used). Ignored when resuming.
     metadata : dict, optional
         JSON-serialisable description (environment, reward) stored in ``budget.json``.
     progress : bool
@@ -284,7 +296,23 @@ def train_sac(
                       "batch_size": batch_size, "buffer_size": buffer_size,
                       "learning_starts": learning_starts, "gamma": gamma, "tau": tau,
                       "train_freq": train_freq, "gradient_steps": gradient_steps}
-            model = SAC.load(init_path, env=env, device="cpu", custom_objects=custom)
+            if _is_policy_only(init_path):
+                # a shipped ``policy.zip`` (networks only): fresh SAC, then copy actor and critics in
+                from stable_baselines3.sac.policies import SACPolicy
+
+                model = SAC("MlpPolicy", env, learning_rate=learning_rate, buffer_size=buffer_size,
+                            ent_coef=ent_coef, replay_buffer_kwargs=replay_buffer_kwargs,
+                            learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
+                            train_freq=train_freq, gradient_steps=gradient_steps,
+                            policy_kwargs={**(policy_kwargs or {}), "net_arch": net_arch}, seed=seed,
+                            device="cpu", verbose=0)
+                src = SACPolicy.load(str(init_path), device="cpu")
+                try:
+                    model.policy.load_state_dict(src.state_dict())
+                except RuntimeError as exc:
+                    raise ValueError(f"init_from: {init_path} does not fit this environment/net_arch ({exc})") from None
+            else:
+                model = SAC.load(init_path, env=env, device="cpu", custom_objects=custom)
             model.num_timesteps = 0
             model._episode_num = 0
             model.ep_info_buffer = None  # report only this run's episodes

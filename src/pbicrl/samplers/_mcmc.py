@@ -18,6 +18,7 @@ from numba import njit
 
 from pbicrl._kernels import total_loglik
 from pbicrl.samplers._parametric import param_column
+from pbicrl.samplers._priorkern import _logprior_w, _lognormal
 
 MODE_PBICRL = 0  # flip-and-draw moves (reversible jump), valid for the stated prior
 MODE_PAPER = 1  # the paper's Algorithm 1 (2 with a schedule that does propose theta)
@@ -26,29 +27,6 @@ MODE_BPL = 2  # Algorithm 3: weights only, every feature on
 # counters layout
 C_FLIP_PROP, C_FLIP_ACC, C_W_PROP, C_W_ACC, C_EVALS, C_T_PROP, C_T_ACC = 0, 1, 2, 3, 4, 5, 6
 N_COUNTS = 7
-
-_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
-
-
-@njit(cache=True)
-def _logprior_w(kind: int, prm: np.ndarray, j: int, w: float) -> float:
-    lo = prm[j, 0]
-    hi = prm[j, 1]
-    if w < lo or w > hi or w != w:
-        return -np.inf
-    if kind == 0:
-        return -math.log(hi - lo)
-    if kind == 1:
-        z = (w - prm[j, 2]) / prm[j, 3]
-        return -0.5 * z * z - math.log(prm[j, 3]) - _LOG_SQRT_2PI
-    return 0.0
-
-
-@njit(cache=True)
-def _lognormal(w: float, mu: float, s: float) -> float:
-    z = (w - mu) / s
-    return -0.5 * z * z - math.log(s) - _LOG_SQRT_2PI
-
 
 @njit(cache=True)
 def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: np.ndarray, use_prior: bool) -> float:
