@@ -98,3 +98,20 @@ def test_existing_output_is_not_clobbered(data_path, tmp_path, capsys):
 def test_console_script_runs():
     r = subprocess.run([sys.executable, "-m", "pbicrl.cli", "--version"], capture_output=True, text=True)
     assert r.returncode == 0 and "pbicrl" in r.stdout
+
+
+@pytest.mark.parametrize("flag,value", [("--prior-bounds", "-50,50"), ("--nominal-weights", "-1,0,0,-1"),
+                                        ("--margins", "-0.5,1")])
+def test_negative_first_value_is_accepted(data_path, tmp_path, flag, value, capsys):
+    """``--prior-bounds -50,50`` (space, not '=') used to fail with 'expected one argument'."""
+    from pbicrl.cli import _join_negative_values
+
+    assert _join_negative_values([flag, value, "--x", "y"]) == [f"{flag}={value}", "--x", "y"]
+    if flag == "--nominal-weights":
+        value = ",".join(["-1"] * np.load(data_path)["features"].shape[1])
+    out = tmp_path / "run"
+    code = main(["infer", str(data_path), "--out", str(out), flag, value, "--iterations", "400", "--chains", "1",
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    assert "expected one argument" not in err
+    assert code in (0, 2)  # a value the model rejects is a clean error, never an argparse failure

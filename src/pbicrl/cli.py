@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -218,9 +219,33 @@ _EXTENSIONS: tuple[str, ...] = ("pbicrl.experiments.sweep", "pbicrl.experiments.
                                 "pbicrl.cli_envs")
 
 
+_NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d|inf|nan)", re.IGNORECASE)
+
+
+def _join_negative_values(argv: Sequence[str]) -> list[str]:
+    """``--prior-bounds -1000,1000`` -> ``--prior-bounds=-1000,1000``.
+
+    argparse takes a value starting with ``-`` for an option unless it is a plain negative number, so lists
+    such as ``-1000,1000`` or ``-1,0,0,1`` would fail with "expected one argument".
+    """
+    out: list[str] = []
+    i = 0
+    argv = list(argv)
+    while i < len(argv):
+        tok = argv[i]
+        if (tok.startswith("--") and "=" not in tok and len(tok) > 2 and i + 1 < len(argv)
+                and _NEGATIVE_VALUE.match(argv[i + 1])):
+            out.append(f"{tok}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(tok)
+        i += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
     try:
         return int(args.func(args) or 0)
     except _USER_ERRORS as exc:
