@@ -194,6 +194,29 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_check(sub: Any) -> None:
+    p = sub.add_parser("check", help="posterior predictive check on held-out demonstrations",
+                       description="How often the posterior's reward orders held-out demonstrations of different "
+                                   "groups correctly, against the nominal reward alone.")
+    p.add_argument("run", type=Path, help="run directory written by 'pbicrl infer'")
+    p.add_argument("--data", type=Path, required=True, help="held-out grouped dataset (.npz or a shipped name)")
+    p.add_argument("--draws", type=_positive_int, default=400, help="posterior draws to score (default 400)")
+    p.add_argument("--seed", type=_nonneg_int, default=0)
+    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    p.set_defaults(func=_cmd_check)
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from pbicrl.check import predictive_check
+    from pbicrl.data import load_dataset
+    from pbicrl.runs import load_run
+
+    run = load_run(args.run)
+    res = predictive_check(run, load_dataset(_resolve_data(args.data)), n_draws=args.draws, seed=args.seed)
+    print(json.dumps(res.to_dict(), indent=2) if args.json else res.table())
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from pbicrl import __version__
 
@@ -204,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_info(sub)
     _add_synthetic(sub)
     _add_tune(sub)
+    _add_check(sub)
     for mount in _EXTENSIONS:
         try:
             module = __import__(mount, fromlist=["add_subcommands"])
