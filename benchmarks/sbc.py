@@ -78,6 +78,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--group-pairs", type=int, help="groups design: N random pairs per group pair instead of all")
     ap.add_argument("--power", default="1", help="likelihood power: a number in (0, 1] or 'pairs'")
+    ap.add_argument("--likelihood", choices=["pairwise", "grouped"], default="pairwise",
+                    help="groups design: inference with the paper's Eq. 7 or the exact grouped likelihood")
     ap.add_argument("--diagnose", action="store_true", help="also record R-hat / ESS of every replicate (needs ArviZ)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/reports"))
     args = ap.parse_args()
@@ -85,8 +87,11 @@ def main() -> None:
     for design in designs:
         gp = args.group_pairs if (design == "groups" and args.group_pairs) else "all"
         power = args.power if args.power == "pairs" else float(args.power)
-        problem = SBCProblem(design=design, group_pairs=gp, power=power)
+        lik = args.likelihood if design == "groups" else "pairwise"
+        problem = SBCProblem(design=design, group_pairs=gp, power=power, likelihood=lik)
         tag = design if gp == "all" else f"{design}_pairs{gp}"
+        if lik == "grouped":
+            tag += "_grouped"
         if power != 1.0:
             tag += f"_power-{args.power}"
         t0 = time.perf_counter()
@@ -109,6 +114,13 @@ def main() -> None:
                   f"{t['mean_rank_normalised']:.3f}  counts {t['counts']}")
         if out["diagnostics"]:
             print(f"  diagnostics: {out['diagnostics']}")
+        for name, e in out["conditional"]["features"].items():
+            print(f"  penalty[{name}] | c=1: coverage90 {e['coverage90']}  rank chi2 p {e.get('rank_chi2_p')}  "
+                  f"KS p {e.get('rank_ks_p')}  ({e['replicates_with_c1']} replicates)")
+        print("  P(c=1) reliability: " + "; ".join(
+            f"[{r['bin'][0]:.2f},{r['bin'][1]:.2f}] n={r['n']} pred={r['predicted'] if r['predicted'] is None else round(r['predicted'], 3)} "
+            f"obs={r['observed'] if r['observed'] is None else round(r['observed'], 3)}"
+            for r in out["conditional"]["reliability"]) + f"; Brier {out['conditional']['brier']:.4f}")
 
 
 if __name__ == "__main__":

@@ -126,7 +126,8 @@ def test_posterior_summary_table_and_warnings(small_post):
     assert set(diag["penalty"]["constraint1"]) == {"rhat", "ess_bulk", "ess_tail"}
     json.dumps(s)  # serialisable (no NaN objects)
     table = post.table()
-    assert "ESS bulk" in table and "ESS tail" in table and "R-hat" in table
+    assert "R-hat" in table and "ESS" in table
+    assert "smaller of bulk and tail" in table or "no ESS" in table  # the table's ESS column, explained
     # 6000 iterations x 4 chains is short: the flags, when raised, must agree with the numbers in the summary
     d = post.diagnostics()
     flagged = any(v["rhat"] is not None and v["rhat"] > 1.01 for kv in d.values.values() for v in kv.values())
@@ -176,10 +177,11 @@ def test_to_arviz_variables_named_after_features(small_post):
     data = post.to_arviz()
     p = data["posterior"]
     assert list(p["penalty"].coords["feature"].values) == list(post.feature_names)
-    for var in ("indicator", "penalty", "penalty_weight"):
+    for var in ("indicator", "penalty"):
         assert p[var].shape == (post.n_chains, post.n_draws, post.n_features)
+    assert "penalty_weight" not in p  # identical to penalty for the pbicrl sampler
     np.testing.assert_allclose(p["penalty"].sel(feature="constraint2").values, post.effective_penalty[:, :, 2])
-    np.testing.assert_allclose(data["log_likelihood"]["preferences"].values, post.log_likelihood)
+    np.testing.assert_allclose(data["sample_stats"]["log_likelihood"].values, post.log_likelihood)
     np.testing.assert_allclose(data["sample_stats"]["lp"].values, post.log_likelihood + post.log_prior)
     assert "parameter" not in p
 
@@ -221,3 +223,32 @@ def test_summary_json_is_strict_json_with_stuck_chains():
     assert d.values["indicator"]["x0"]["rhat"] == float("inf")
     out = json.dumps(d.to_dict(), allow_nan=False)  # raises on inf / NaN
     assert json.loads(out)["indicator"]["x0"]["rhat"] is None
+
+
+def test_not_identifiable_features_are_not_diagnosed():
+    rng = np.random.default_rng(8)
+    x = rng.normal(size=(4, 200, 2))
+    x[:, :, 1] += np.arange(4)[:, None] * 10.0  # chains disagree on x1
+    post = fake_posterior(x)
+    post.not_identifiable = lambda: {"x1": "constant across trajectories"}
+    for backend in ("auto", "numpy"):
+        d = diagnostics.compute(post, backend=backend, cache=False)
+        assert d.values["penalty"]["x1"] == {"rhat": None, "ess_bulk": None, "ess_tail": None}
+        assert d.values["indicator"]["x1"]["rhat"] is None
+        assert d.values["penalty"]["x0"]["rhat"] is not None
+        assert d.excluded == {"x1": "constant across trajectories"}
+        assert d.to_dict()["not_identifiable"] == {"x1": "constant across trajectories"}
+        assert not any("x1" in m for m in d.warnings())
+        assert "not diagnosed (not identifiable): x1" in d.table()
+    post.not_identifiable = {}  # a plain mapping works too, and nothing is left out
+    assert diagnostics.compute(post, cache=False).values["penalty"]["x1"]["rhat"] > 1.1
+
+
+def test_compact_cells_show_the_smaller_ess():
+    pytest.importorskip("arviz")
+    d = diagnostics.compute(fake_posterior(np.random.default_rng(9).normal(size=(4, 300, 1))), cache=False)
+    v = d.worst_of(("penalty", "indicator"), "x0")  # the indicator is constant (all on): penalty only
+    cell = d.cells("feature", "x0", compact=True)
+    assert len(cell) == 14
+    assert cell.split() == [f"{v['rhat']:.3f}", f"{min(v['ess_bulk'], v['ess_tail']):.0f}"]
+    assert "smaller of bulk and tail" in d.footer(compact=True)

@@ -14,7 +14,9 @@ Quick start::
 """
 
 from pbicrl.api import infer
-from pbicrl.data import Dataset, DatasetError, load_dataset
+from pbicrl.data import Dataset, DatasetError, list_shipped_datasets, load_dataset, resolve_dataset_path
+from pbicrl.errors import PbicrlWarning
+from pbicrl.identify import Identification, identify
 from pbicrl.likelihood import PreferenceLikelihood, log_likelihood
 from pbicrl.preferences import Margins, PreferenceError, Preferences
 from pbicrl.priors import IndicatorPrior, PriorError, WeightPrior
@@ -24,7 +26,8 @@ from pbicrl.samplers import SamplerSettings, build_kernel, sample
 __version__ = "0.1.0"
 
 __all__ = [
-    "Dataset", "DatasetError", "load_dataset", "Margins", "Preferences", "PreferenceError",
+    "Dataset", "DatasetError", "load_dataset", "resolve_dataset_path", "list_shipped_datasets",
+    "PbicrlWarning", "identify", "Identification", "Margins", "Preferences", "PreferenceError",
     "PreferenceLikelihood", "log_likelihood", "WeightPrior", "IndicatorPrior", "PriorError",
     "SamplerSettings", "build_kernel", "sample", "Posterior", "infer", "__version__",
 ]

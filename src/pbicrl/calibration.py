@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,7 +37,8 @@ from pbicrl.preferences import Preferences
 from pbicrl.priors import IndicatorPrior, WeightPrior
 from pbicrl.samplers import SamplerSettings, sample
 
-__all__ = ["SBCProblem", "SBCResult", "simulate", "rank_statistics", "run_sbc", "uniformity"]
+__all__ = ["SBCProblem", "SBCResult", "conditional_summary", "reliability", "simulate", "rank_statistics", "run_sbc",
+           "uniformity"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,11 @@ class SBCProblem:
         Standard deviation of the per-trajectory mean features.
     power : float or "pairs"
         Likelihood power used for inference (see :class:`~pbicrl.likelihood.PreferenceLikelihood`).
+    likelihood : {"pairwise", "grouped"}
+        ``"groups"`` design: the likelihood used for inference, the paper's Eq. 7 over pairs or the exact
+        grouped Plackett-Luce likelihood (the model that generated the data).
+    sign : {"any", "negative"}
+        Support of the flat prior: ``[-bound, bound]`` or ``[-bound, 0]``.
     """
 
     n_features: int = 2
@@ -84,6 +90,8 @@ class SBCProblem:
     nominal: float = 0.0
     feature_scale: float = 1.0
     power: float | str = 1.0
+    likelihood: Literal["pairwise", "grouped"] = "pairwise"
+    sign: Literal["any", "negative"] = "any"
 
     def __post_init__(self) -> None:
         if self.design not in ("pairs", "groups"):
@@ -97,6 +105,10 @@ class SBCProblem:
             raise ValueError(f"group_pairs: expected 'all' or a positive integer, got {self.group_pairs!r}")
         if not self.bound > 0:
             raise ValueError(f"bound: must be positive, got {self.bound}")
+        if self.likelihood not in ("pairwise", "grouped"):
+            raise ValueError(f"likelihood: expected 'pairwise' or 'grouped', got {self.likelihood!r}")
+        if self.likelihood == "grouped" and self.design != "groups":
+            raise ValueError("likelihood: 'grouped' needs design='groups' (grouped rankings)")
 
     @property
     def pairs_(self) -> int:
@@ -105,7 +117,7 @@ class SBCProblem:
 
     @property
     def weight_prior(self) -> WeightPrior:
-        return WeightPrior("flat", -float(self.bound), float(self.bound))
+        return WeightPrior("flat", -float(self.bound), float(self.bound), sign=self.sign)
 
     @property
     def indicator_prior(self) -> IndicatorPrior:
@@ -116,7 +128,8 @@ class SBCProblem:
                 "length": self.length, "design": self.design,
                 "n_pairs": self.pairs_ if self.design == "pairs" else None,
                 "group_pairs": self.group_pairs if self.design == "groups" else None, "bound": self.bound,
-                "pi": self.pi, "nominal": self.nominal, "feature_scale": self.feature_scale, "power": self.power}
+                "pi": self.pi, "nominal": self.nominal, "feature_scale": self.feature_scale, "power": self.power,
+                "likelihood": self.likelihood, "sign": self.sign}
 
 
 def simulate(problem: SBCProblem, rng: np.random.Generator) -> tuple[PreferenceLikelihood, NDArray[np.int64], NDArray[np.float64]]:
@@ -153,6 +166,8 @@ def simulate(problem: SBCProblem, rng: np.random.Generator) -> tuple[PreferenceL
         prefs = Preferences.from_groups(group, protocol=problem.group_pairs, seed=rng)
     from pbicrl.likelihood import pairwise_power
 
+    if problem.likelihood == "grouped":
+        return PreferenceLikelihood(mean_features, prefs, wn, 1.0, 1.0, kind="grouped"), c, wp
     power = pairwise_power(prefs) if problem.power == "pairs" else float(problem.power)
     return PreferenceLikelihood(mean_features, prefs, wn, 1.0, power), c, wp
 
@@ -189,6 +204,45 @@ def uniformity(ranks: NDArray[np.int64], L: int, *, bins: int = 9, seed: int = 0
     return {"bins": bins, "tests": out}
 
 
+def reliability(p: NDArray[np.float64], truth: NDArray[np.int64], *, edges: Sequence[float] = (0.0, 0.05, 0.2, 0.4, 0.6,
+                                                                                        0.8, 0.95, 1.0)) -> list[dict]:
+    """Reliability table of predicted probabilities ``p`` against binary outcomes ``truth``.
+
+    One row per bin of ``edges`` (the last bin closed): count, mean predicted probability and observed
+    frequency. Calibrated probabilities have observed close to predicted in every bin.
+    """
+    p = np.asarray(p, dtype=np.float64).ravel()
+    t = np.asarray(truth, dtype=np.float64).ravel()
+    rows = []
+    for k in range(len(edges) - 1):
+        lo, hi = edges[k], edges[k + 1]
+        m = (p >= lo) & ((p < hi) if k < len(edges) - 2 else (p <= hi))
+        rows.append({"bin": [lo, hi], "n": int(m.sum()),
+                     "predicted": float(p[m].mean()) if m.any() else None,
+                     "observed": float(t[m].mean()) if m.any() else None})
+    return rows
+
+
+def conditional_summary(cover: list[list[float]], cond_u: list[list[float]], p_c: NDArray[np.float64],
+                        c_true: NDArray[np.int64], *, bins: int = 9) -> dict[str, Any]:
+    """Coverage and rank uniformity of the penalties given :math:`c_j = 1`, and reliability of :math:`P(c_j=1)`."""
+    from scipy import stats
+
+    out: dict[str, Any] = {"features": {}}
+    for j, (cv, u) in enumerate(zip(cover, cond_u)):
+        u_arr = np.asarray(u)
+        entry: dict[str, Any] = {"replicates_with_c1": len(cv),
+                                 "coverage90": float(np.mean(cv)) if cv else None}
+        if u_arr.size >= 10:
+            counts = np.bincount(np.minimum((u_arr * bins).astype(int), bins - 1), minlength=bins)
+            entry.update({"rank_counts": counts.tolist(), "rank_chi2_p": float(stats.chisquare(counts).pvalue),
+                          "rank_ks_p": float(stats.kstest(u_arr, "uniform").pvalue)})
+        out["features"][f"f{j}"] = entry
+    out["reliability"] = reliability(p_c, c_true)
+    out["brier"] = float(np.mean((p_c - c_true) ** 2))
+    return out
+
+
 @dataclass
 class SBCResult:
     """Ranks of every replicate and their uniformity tests.
@@ -205,6 +259,10 @@ class SBCResult:
         :func:`uniformity` of the ranks.
     diagnostics : dict
         Worst R-hat and smallest bulk ESS per replicate (when ArviZ is available), summarised.
+    conditional : dict
+        Per feature, over the replicates with true :math:`c_j = 1`: coverage of the central 90% interval of
+        :math:`w_{p,j}` given :math:`c_j = 1`, and uniformity tests of the truth's normalised rank among
+        those conditional draws; and a reliability table of :math:`P(c_j = 1)` (see :func:`reliability`).
     """
 
     problem: SBCProblem
@@ -215,6 +273,7 @@ class SBCResult:
     tests: dict = field(default_factory=dict)
     diagnostics: dict = field(default_factory=dict)
     runtime_s: float = 0.0
+    conditional: dict = field(default_factory=dict)
 
     def passed(self, alpha: float = 0.01) -> bool:
         """All chi-square and KS p-values above ``alpha`` divided by the number of tests (Bonferroni)."""
@@ -226,7 +285,7 @@ class SBCResult:
                 "settings": self.settings, "names": self.names,
                 "tests": {n: t for n, t in zip(self.names, self.tests["tests"])}, "bins": self.tests["bins"],
                 "passed_bonferroni_0.01": self.passed(0.01), "diagnostics": self.diagnostics,
-                "runtime_s": self.runtime_s}
+                "conditional": self.conditional, "runtime_s": self.runtime_s}
 
 
 def run_sbc(
@@ -285,6 +344,10 @@ def run_sbc(
     names = [f"penalty[f{j}]" for j in range(d)] + [f"indicator[f{j}]" for j in range(d)]
     ranks = np.zeros((int(n_replicates), 2 * d), dtype=np.int64)
     worst_rhat, min_ess = [], []
+    cover: list[list[float]] = [[] for _ in range(d)]  # 1 inside the 90% interval, 0 outside (true c_j = 1)
+    cond_u: list[list[float]] = [[] for _ in range(d)]  # normalised rank of the truth among w_j | c_j = 1
+    p_c = np.zeros((int(n_replicates), d))
+    c_true = np.zeros((int(n_replicates), d), dtype=np.int64)
     t0 = time.perf_counter()
     for r, child in enumerate(root.spawn(int(n_replicates))):
         s_data, s_chain, s_tie = child.spawn(3)
@@ -296,7 +359,26 @@ def run_sbc(
         eff = ind * post.penalty_weights[:, pick, :].reshape(-1, d)
         truth = np.concatenate([c * wp, c.astype(np.float64)])
         draws = np.hstack([eff, ind])
-        ranks[r] = rank_statistics(truth, draws, np.random.default_rng(s_tie))
+        tie_rng = np.random.default_rng(s_tie)
+        ranks[r] = rank_statistics(truth, draws, tie_rng)
+        all_ind = post.indicators.reshape(-1, d).astype(bool)
+        all_w = post.penalty_weights.reshape(-1, d)
+        p_c[r] = all_ind.mean(axis=0)
+        c_true[r] = c
+        for j in range(d):
+            if c[j] != 1:
+                continue
+            wj = all_w[all_ind[:, j], j]
+            if wj.size < 20:  # the posterior says "off": the interval is empty, the truth is not covered
+                cover[j].append(0.0)
+                continue
+            lo, hi = np.quantile(wj, [0.05, 0.95])
+            cover[j].append(float(lo <= wp[j] <= hi))
+            picked = ind[:, j].astype(bool)
+            wpick = eff[picked, j]
+            if wpick.size:
+                below = np.sum(wpick < wp[j])
+                cond_u[j].append(float((below + tie_rng.random()) / (wpick.size + 1)))
         if diagnose:
             from pbicrl import diagnostics
 
@@ -309,6 +391,7 @@ def run_sbc(
                                                              "ranked_every": stride * thin},
                     runtime_s=time.perf_counter() - t0)
     res.tests = uniformity(ranks, L, bins=bins, seed=int(seed))
+    res.conditional = conditional_summary(cover, cond_u, p_c, c_true, bins=bins)
     if diagnose and worst_rhat:
         wr, me = np.array(worst_rhat), np.array(min_ess)
         res.diagnostics = {"computed_on": f"{n_chains} chains x {per_chain * stride} kept draws per replicate "

@@ -24,10 +24,25 @@ from pbicrl._argtypes import pairs as _pairs
 from pbicrl._argtypes import positive_float as _positive_float
 from pbicrl._argtypes import positive_int as _positive_int
 from pbicrl._argtypes import power as _power
+from pbicrl.data import resolve_dataset_path as _resolve_data
 
 __all__ = ["build_parser", "main"]
 
-_USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, ImportError)
+_USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, ImportError,
+                                               PermissionError, IsADirectoryError, NotADirectoryError)
+
+
+def _add_model_options(p: argparse.ArgumentParser) -> None:
+    """Options that define the model (shared by ``infer`` and ``identify``)."""
+    p.add_argument("--config", type=Path, help="TOML file with the same settings (options below override it)")
+    p.add_argument("--nominal-weights", type=_floats, help="known nominal weights w_n, e.g. '1,0,0,-1'")
+    p.add_argument("--margins", type=_margins, help="K-1 consecutive gaps '0,2.9' or a matrix '0,0,6;0,0,2.9;0,0,0'")
+    p.add_argument("--beta", type=_positive_float, help="inverse temperature (default 1)")
+    p.add_argument("--candidates", help="comma-separated features that may be constraints (default: all)")
+    p.add_argument("--penalty-sign", choices=["negative", "any"],
+                   help="negative (default): penalties penalise, w_p <= 0; any: both signs")
+    p.add_argument("--alpha", type=_positive_float,
+                   help="identifiability level: pairs ordered with probability >= 1 - alpha (default 0.05)")
 
 
 def _add_infer(sub: Any) -> None:
@@ -35,13 +50,13 @@ def _add_infer(sub: Any) -> None:
                        description="Sample the posterior over constraint indicators and penalty weights.")
     p.add_argument("data", type=Path, help="dataset .npz (see pbicrl.data), or a name of a shipped dataset")
     p.add_argument("--out", type=Path, required=True, help="output directory (summary.json, chains.npz)")
-    p.add_argument("--config", type=Path, help="TOML file with the same settings (options below override it)")
-    p.add_argument("--nominal-weights", type=_floats, help="known nominal weights w_n, e.g. '1,0,0,-1'")
-    p.add_argument("--margins", type=_margins, help="K-1 consecutive gaps '0,2.9' or a matrix '0,0,6;0,0,2.9;0,0,0'")
-    p.add_argument("--beta", type=_positive_float, help="inverse temperature (default 1)")
-    p.add_argument("--power", type=_power, help="likelihood power in (0, 1] (default 1 = the paper) or 'pairs'")
-    p.add_argument("--pairs", type=_pairs, help="'all' cross-group pairs (default) or N random pairs per group pair")
-    p.add_argument("--sampler", choices=["pbicrl", "paper", "bpl"], help="pbicrl (default), paper (Algorithm 1), bpl")
+    _add_model_options(p)
+    p.add_argument("--likelihood", choices=["grouped", "pairwise"],
+                   help="grouped (default): exact grouped Plackett-Luce, calibrated; pairwise: the paper's Eq. 7")
+    p.add_argument("--power", type=_power, help="pairwise only: likelihood power in (0, 1] (default 1) or 'pairs'")
+    p.add_argument("--pairs", type=_pairs, help="pairwise only: 'all' cross-group pairs (default) or N per group pair")
+    p.add_argument("--sampler", choices=["pbicrl", "paper", "authors", "bpl"],
+                   help="pbicrl (default), paper (Algorithm 1), authors (the authors' code), bpl")
     p.add_argument("--iterations", type=_positive_int, help="iterations per chain (default 400000)")
     p.add_argument("--burn-in", type=_nonneg_int, help="warm-up iterations (default: a quarter)")
     p.add_argument("--thin", type=_positive_int, help="keep every n-th draw (default: <= 10000 draws per chain)")
@@ -51,58 +66,109 @@ def _add_infer(sub: Any) -> None:
     p.add_argument("--sigma", type=_positive_float, help="random-walk step (default 0.1; adapted for pbicrl)")
     p.add_argument("--fs", dest="f_s", type=_positive_int, help="paper sampler: sampling frequency f_s (default 4)")
     p.add_argument("--p-flip", type=float, help="pbicrl sampler: probability of a flip move (default 0.5)")
-    p.add_argument("--prior", choices=["flat", "uniform", "normal"], help="prior on penalty weights (default flat)")
-    p.add_argument("--prior-bounds", type=_floats, help="bounds of the weight prior 'low,high' (default -1000,1000)")
-    p.add_argument("--prior-scale", type=_positive_float, help="normal prior scale (default 100)")
+    p.add_argument("--prior", choices=["student-t", "flat", "normal"],
+                   help="prior on penalty weights (default student-t: half-t on (-inf, 0], scale-aware)")
+    p.add_argument("--prior-bounds", type=_floats,
+                   help="bounds of the weight prior 'low,high' (default: -1000,1000 for flat, none otherwise)")
+    p.add_argument("--prior-scale", type=_positive_float,
+                   help="student-t/normal scale in units of 1/(beta*sd_j) of each feature (default 2.5)")
+    p.add_argument("--prior-df", type=_positive_float, help="degrees of freedom of the student-t prior (default 3)")
     p.add_argument("--indicator-pi", type=float, help="Bernoulli prior P(c_j = 1) (default 0.5)")
-    p.add_argument("--candidates", help="comma-separated features that may be constraints (default: all)")
+    p.add_argument("--check", type=_positive_int, metavar="K",
+                   help="also run a stratified K-fold posterior predictive check (K extra fits; check.json)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print summary.json instead of the table")
     p.set_defaults(func=_cmd_infer)
 
 
-def _cmd_infer(args: argparse.Namespace) -> int:
-    from pbicrl.api import infer_from_config
+def _config_from_args(args: argparse.Namespace) -> Any:
     from pbicrl.config import ConfigError, InferConfig, load_config
-    from pbicrl.data import load_dataset
 
     cfg = load_config(args.config) if args.config else InferConfig()
-    bounds = args.prior_bounds
+    bounds = getattr(args, "prior_bounds", None)
     if bounds is not None and len(bounds) != 2:
         raise ConfigError(f"--prior-bounds: expected two numbers 'low,high', got {len(bounds)}")
-    cfg = cfg.updated(
-        nominal_weights=args.nominal_weights, margins=args.margins, beta=args.beta, power=args.power, pairs=args.pairs,
-        sampler=args.sampler, iterations=args.iterations, burn_in=args.burn_in, thin=args.thin, chains=args.chains,
-        jobs=args.jobs, seed=args.seed, sigma=args.sigma, f_s=args.f_s, p_flip=args.p_flip, prior=args.prior,
+    prior = getattr(args, "prior", None)
+    return cfg.updated(
+        nominal_weights=args.nominal_weights, margins=args.margins, beta=args.beta,
+        power=getattr(args, "power", None), pairs=getattr(args, "pairs", None),
+        likelihood=getattr(args, "likelihood", None), sampler=getattr(args, "sampler", None),
+        iterations=getattr(args, "iterations", None), burn_in=getattr(args, "burn_in", None),
+        thin=getattr(args, "thin", None), chains=getattr(args, "chains", None), jobs=getattr(args, "jobs", None),
+        seed=getattr(args, "seed", None), sigma=getattr(args, "sigma", None), f_s=getattr(args, "f_s", None),
+        p_flip=getattr(args, "p_flip", None), prior=None if prior is None else prior.replace("-", "_"),
         prior_low=None if bounds is None else bounds[0], prior_high=None if bounds is None else bounds[1],
-        prior_scale=args.prior_scale, indicator_pi=args.indicator_pi,
+        prior_scale=getattr(args, "prior_scale", None), prior_df=getattr(args, "prior_df", None),
+        penalty_sign=args.penalty_sign, alpha=args.alpha, indicator_pi=getattr(args, "indicator_pi", None),
         candidates=None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()])
-    if args.out.exists() and not args.overwrite and (not args.out.is_dir() or any(args.out.iterdir())):
-        raise FileExistsError(f"--out: {args.out} already exists; choose another directory or pass --overwrite")
+
+
+def _cmd_infer(args: argparse.Namespace) -> int:
+    from pbicrl.api import infer_from_config
+    from pbicrl.data import load_dataset
+
+    from pbicrl.results import check_out_dir
+
+    cfg = _config_from_args(args)
     data = _resolve_data(args.data)
+    check_out_dir(args.out, overwrite=args.overwrite)  # before sampling, not after it
+    if args.out.resolve() == data.resolve():
+        raise FileExistsError(f"out: {args.out} is the input dataset; choose another directory")
     ds = load_dataset(data)
     post = infer_from_config(ds, cfg, progress=not args.no_progress)
     post.extra["data"]["path"] = str(data)
-    post.save(args.out, overwrite=args.overwrite)
+    extra_json = {}
+    if args.check:
+        from pbicrl.check import cross_validate
+
+        print(f"posterior predictive check: {args.check}-fold cross-validation ({args.check} more fits)",
+              file=sys.stderr)
+        res = cross_validate(ds, args.check, lambda d: infer_from_config(d, cfg, progress=False), seed=cfg.seed)
+        extra_json["check.json"] = res.to_dict()
+        post.extra["check"] = {k: v for k, v in res.to_dict().items() if k != "folds"}
+    post.save(args.out, overwrite=args.overwrite, extra_json=extra_json)
     if args.json:
-        print(json.dumps(post.summary(), indent=2, default=str))
+        print(json.dumps(post.summary(), indent=2, allow_nan=False))
     else:
         print(post.table())
+        if args.check:
+            print(res.table())
         print(f"wrote {args.out / 'summary.json'} and {args.out / 'chains.npz'}")
     return 0
 
 
-def _resolve_data(path: Path) -> Path:
-    """A path, or the name of a dataset shipped in ``pbicrl/data`` (e.g. ``point_mass``)."""
-    if path.exists():
-        return path
-    from importlib import resources
+def _add_identify(sub: Any) -> None:
+    p = sub.add_parser("identify", help="what do the rankings identify? (separation analysis, no sampling)",
+                       description="For each feature: whether the rankings bound its penalty, the separation "
+                                   "scale min_penalty, and the directions along which the likelihood keeps "
+                                   "increasing; identified intervals of parametric constraints.")
+    p.add_argument("data", type=Path, help="dataset .npz, or a name of a shipped dataset")
+    _add_model_options(p)
+    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    p.set_defaults(func=_cmd_identify)
 
-    shipped = resources.files("pbicrl") / "data" / (path.name if path.suffix == ".npz" else f"{path.name}.npz")
-    if shipped.is_file():
-        return Path(str(shipped))
-    raise FileNotFoundError(f"data: {path}: no such file (and no shipped dataset of that name)")
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from pbicrl.data import load_dataset
+    from pbicrl.identify import identify
+
+    cfg = _config_from_args(args)
+    ds = load_dataset(_resolve_data(args.data))
+    cset = None
+    if cfg.constraints:
+        from pbicrl.constraints import ConstraintSet, constraint_from_dict
+
+        cset = ConstraintSet(tuple(constraint_from_dict(c) for c in cfg.constraints), ds)
+    res = identify(ds, nominal_weights=cfg.nominal_weights, beta=cfg.beta, margins=cfg.margins, alpha=cfg.alpha,
+                   candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset)  # type: ignore[arg-type]
+    if args.json:
+        print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
+    else:
+        print(res.table())
+        for w in res.warnings():
+            print(f"warning: {w}", file=sys.stderr)
+    return 0
 
 
 def _add_info(sub: Any) -> None:
@@ -128,14 +194,17 @@ def _add_synthetic(sub: Any) -> None:
     p.add_argument("out", type=Path, help="output .npz")
     p.add_argument("--per-group", type=_positive_int, default=60)
     p.add_argument("--seed", type=_nonneg_int, default=0)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
     p.set_defaults(func=_cmd_synthetic)
 
 
 def _cmd_synthetic(args: argparse.Namespace) -> int:
     from pbicrl.synthetic import make_problem
 
+    if args.out.exists() and not args.overwrite:
+        raise FileExistsError(f"out: {args.out} already exists; choose another file or pass --overwrite")
     prob = make_problem(args.per_group, labels="violations", violation_rate=0.4, seed=args.seed)
-    path = prob.dataset.save(args.out)
+    path = prob.dataset.save(args.out, overwrite=args.overwrite)
     print(f"wrote {path}: {prob.dataset}; true penalty {prob.true_penalty.tolist()}")
     return 0
 
@@ -152,9 +221,10 @@ def _add_tune(sub: Any) -> None:
     p.add_argument("--config", type=Path, help="TOML with the inference settings (as for infer)")
     p.add_argument("--iterations", type=_positive_int, help="iterations per candidate run (default 50000)")
     p.add_argument("--chains", type=_positive_int, help="chains per candidate run (default 1)")
-    p.add_argument("--sampler", choices=["pbicrl", "paper", "bpl"])
+    p.add_argument("--sampler", choices=["pbicrl", "paper", "authors", "bpl"])
     p.add_argument("--seed", type=_nonneg_int)
-    p.add_argument("--estimator", choices=["map", "mean"], default="map", help="weights for the group means (default map)")
+    p.add_argument("--estimator", choices=["selected", "map", "mean"], default="selected",
+                   help="weights for the group means: selected set with conditional medians (default), map, mean")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_tune)
@@ -169,8 +239,9 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config) if args.config else InferConfig(iterations=50_000, chains=1)
     cfg = cfg.updated(iterations=args.iterations, chains=args.chains, sampler=args.sampler, seed=args.seed)
-    if args.out.exists() and not args.overwrite and (not args.out.is_dir() or any(args.out.iterdir())):
-        raise FileExistsError(f"--out: {args.out} already exists; choose another directory or pass --overwrite")
+    from pbicrl.results import check_out_dir
+
+    check_out_dir(args.out, overwrite=args.overwrite)
     data = _resolve_data(args.data)
     ds = load_dataset(data)
     from dataclasses import replace
@@ -224,6 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"pbicrl {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_infer(sub)
+    _add_identify(sub)
     _add_info(sub)
     _add_synthetic(sub)
     _add_tune(sub)
@@ -277,6 +349,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"pbicrl: error: {msg}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("pbicrl: error: out of memory; use a smaller dataset or fewer chains/draws", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("pbicrl: interrupted; no output written", file=sys.stderr)

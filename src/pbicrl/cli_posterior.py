@@ -6,31 +6,141 @@
 ``pbicrl import csv|parquet|minari``  a table or a Minari dataset -> a dataset ``.npz``
 
 Optional dependencies (ArviZ, matplotlib, pyarrow, minari) are imported only when a command runs.
+
+Inputs are checked before anything is computed: a run directory's ``chains.npz`` must be a readable archive
+whose arrays fit in memory, its ``summary.json`` a JSON object with the expected types, and no output may be
+(or replace) an input file, ``--overwrite`` or not.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from pbicrl._argtypes import floats as _floats
 from pbicrl._argtypes import positive_int as _positive_int
 
-__all__ = ["add_subcommands"]
+__all__ = ["add_subcommands", "check_run_dir", "load_run_checked"]
+
+_MAX_SUMMARY_BYTES = 64 << 20  # a summary.json is a few hundred KiB at most; more is not a summary
+
+# summary.json keys that readers use, and the JSON types they must have when present
+_SUMMARY_TYPES: dict[str, tuple[type, ...]] = {
+    "method": (str,), "feature_names": (list,), "parameter_names": (list,), "settings": (dict,), "extra": (dict,),
+    "map": (dict,), "posterior": (dict,), "seed": (int,), "chains": (int,), "iterations": (int,),
+    "schema_version": (int,), "warnings": (list,),
+}
 
 
+# ---------------------------------------------------------------------------------------------- inputs
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
+def _refuse_inputs(out: Path, inputs: Sequence[Path | None], flag: str) -> None:
+    """An output may never be (or replace) an input file, with ``--overwrite`` or without."""
+    for inp in inputs:
+        if inp is None:
+            continue
+        if _same_file(out, inp) or Path(os.path.abspath(out)) == Path(os.path.abspath(inp)):
+            raise ValueError(f"{flag}: {out} is an input of this command ({inp}); choose another output "
+                             "(--overwrite never replaces an input)")
+
+
+def _check_summary(path: Path) -> None:
+    from pbicrl.runs import RunError
+
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise RunError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if not path.is_file():
+        raise RunError(f"{path}: not a regular file")
+    if size > _MAX_SUMMARY_BYTES:
+        raise RunError(f"{path}: {size:,} bytes, too large for a run summary (is it the right file?)")
+    try:
+        summary = json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise RunError(f"{path}: not UTF-8 text (not a summary.json written by pbicrl)") from None
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError; absurd nesting recurses
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RunError(f"{path}: not valid JSON ({why})") from None
+    if not isinstance(summary, dict):
+        raise RunError(f"{path}: expected a JSON object, got a JSON {type(summary).__name__}")
+    for key, types in _SUMMARY_TYPES.items():
+        value = summary.get(key)
+        if value is not None and (not isinstance(value, types) or isinstance(value, bool) and bool not in types):
+            raise RunError(f"{path}: '{key}' should be a JSON {' or '.join(_json_type(t) for t in types)}, "
+                           f"got {_json_type(type(value))} {json.dumps(value)[:60]}")
+    for key in ("feature_names", "parameter_names"):
+        names = summary.get(key)
+        if names is not None and not all(isinstance(n, str) for n in names):
+            raise RunError(f"{path}: '{key}' should be a list of strings")
+    data = (summary.get("extra") or {}).get("data")
+    if data is not None and (not isinstance(data, dict) or not isinstance(data.get("path", ""), (str, type(None)))):
+        raise RunError(f"{path}: 'extra.data' should be an object with a string 'path'")
+
+
+def _json_type(t: type) -> str:
+    return {str: "string", list: "array", dict: "object", int: "integer", float: "number", bool: "boolean",
+            type(None): "null"}.get(t, t.__name__)
+
+
+def check_run_dir(run_dir: str | os.PathLike[str]) -> None:
+    """Check a run directory's files before reading them; errors name the file and what is wrong.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such directory, or ``summary.json`` / ``chains.npz`` missing.
+    pbicrl.runs.RunError
+        ``chains.npz`` empty, not an archive, with an unreadable or huge header or arrays larger than memory;
+        ``summary.json`` not a JSON object or a known key of the wrong type.
+    """
+    from pbicrl.data import DatasetError, inspect_npz
+    from pbicrl.runs import RunError
+
+    run = Path(run_dir)
+    if not run.is_dir():
+        what = "not a directory" if run.exists() else "no such directory"
+        raise FileNotFoundError(f"run: {run}: {what} (expected the --out directory of pbicrl infer)")
+    sj, cz = run / "summary.json", run / "chains.npz"
+    for f in (sj, cz):
+        if not f.exists():
+            raise FileNotFoundError(f"run: {f}: missing (a run directory holds summary.json and chains.npz)")
+    try:
+        inspect_npz(cz, what="chains file")
+    except DatasetError as exc:
+        raise RunError(str(exc)) from None
+    _check_summary(sj)
+
+
+def load_run_checked(run_dir: str | os.PathLike[str]) -> Any:
+    """:func:`pbicrl.runs.load_run` after :func:`check_run_dir`; any malformation left is a ``RunError``."""
+    from pbicrl.runs import RunError, load_run
+
+    check_run_dir(run_dir)
+    try:
+        return load_run(run_dir)
+    except (FileNotFoundError, RunError):
+        raise
+    except (TypeError, KeyError, AttributeError, IndexError, EOFError, UnicodeDecodeError, OverflowError) as exc:
+        # a structurally valid file with contents pbicrl never writes (e.g. a string array of indicators)
+        raise RunError(f"{run_dir}: malformed run directory ({type(exc).__name__}: {exc})") from None
 
 
 # ---------------------------------------------------------------------------------------------- diagnose
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from pbicrl import diagnostics
-    from pbicrl.runs import load_run
 
-    run = load_run(args.run)
+    run = load_run_checked(args.run)
     diag = diagnostics.compute(run, backend="arviz" if args.require_arviz else "auto")
     if args.json:
         print(json.dumps(diag.to_dict(), indent=2))
@@ -44,12 +154,16 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------- plot
 def _cmd_plot(args: argparse.Namespace) -> int:
     from pbicrl.plots import parse_truth, plot_run
-    from pbicrl.runs import load_run
 
-    run = load_run(args.run)
-    truth = parse_truth(args.truth, run.feature_names)
-    if args.data is not None and not args.data.is_file():
-        raise FileNotFoundError(f"--data: {args.data}: no such file")
+    run = load_run_checked(args.run)
+    truth = parse_truth(args.truth, run.feature_names, tuple(getattr(run, "parameter_names", None) or ()))
+    if args.data is not None:
+        from pbicrl.data import resolve_dataset_path
+
+        args.data = resolve_dataset_path(args.data)
+    if args.out is not None:
+        if args.out.exists() and not args.out.is_dir():
+            raise ValueError(f"--out: {args.out} is a file; plots go into a directory")
     files = plot_run(run, args.out, dataset=args.data, truth=truth, fmt=args.format, dpi=args.dpi)
     for f in files:
         print(f"wrote {f}")
@@ -61,43 +175,66 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------- export
 def _cmd_export(args: argparse.Namespace) -> int:
     from pbicrl.export import to_netcdf
-    from pbicrl.runs import load_run
 
-    run = load_run(args.run)
+    run = load_run_checked(args.run)
     out = args.netcdf if args.netcdf is not None else Path(args.run) / "posterior.nc"
-    path = to_netcdf(run, out, overwrite=args.overwrite)
+    if out.is_dir():
+        raise ValueError(f"--netcdf: {out} is a directory; give a file name such as {out / 'posterior.nc'}")
+    _refuse_inputs(out, [args.run, Path(args.run) / "summary.json", Path(args.run) / "chains.npz"], "--netcdf")
+    from pbicrl.data import resolve_dataset_path
+
+    path = to_netcdf(run, out, overwrite=args.overwrite,
+                     dataset=resolve_dataset_path(args.data) if args.data else None,
+                     pointwise=False if args.no_pointwise else "auto", pointwise_draws=args.pointwise_draws)
     print(f"wrote {path}")
     return 0
 
 
 # ---------------------------------------------------------------------------------------------- import
-def _check_out(out: Path, overwrite: bool) -> None:
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"--out: {out} already exists; choose another file or pass --overwrite")
+def _check_out(out: Path, overwrite: bool, inputs: Sequence[Path | None] = ()) -> None:
+    """``--out`` of an import: a new ``.npz`` file name (an existing one only with ``--overwrite``), never a
+    directory and never one of the command's inputs."""
+    if out.is_dir():
+        raise ValueError(f"--out: {out} is a directory; give a file name such as {out / 'demos.npz'}")
     if out.suffix != ".npz":
         raise ValueError(f"--out: expected a .npz file name, got {out}")
+    _refuse_inputs(out, inputs, "--out")
+    if (out.exists() or out.is_symlink()) and not overwrite:
+        raise FileExistsError(f"--out: {out} already exists; choose another file or pass --overwrite")
+
+
+def _spec_file(spec: str | None) -> Path | None:
+    """The file of a 'file.py:function' spec (an input of the command), if it names one."""
+    if not spec or ":" not in spec:
+        return None
+    mod = spec.rpartition(":")[0]
+    return Path(mod) if mod.endswith(".py") else None
 
 
 def _cmd_import_table(args: argparse.Namespace) -> int:
     from pbicrl.io import read_table
 
-    _check_out(args.out, args.overwrite)
+    _check_out(args.out, args.overwrite, [args.file])
     fmt = args.format
     kwargs: dict[str, Any] = {}
     if fmt in ("csv", "tsv") and args.delimiter is not None:
         kwargs["delimiter"] = args.delimiter
     ds = read_table(args.file, format=fmt, id_col=args.id_col, group_col=args.group_col,
                     feature_cols=args.feature_cols, state_cols=args.state_cols, action_cols=args.action_cols,
-                    step_col=args.step_col, nominal_weights=args.nominal_weights, **kwargs)
-    ds.save(args.out)
+                    step_col=args.step_col, nominal_weights=args.nominal_weights, group_order=args.group_order,
+                    **kwargs)
+    ds.save(args.out, overwrite=args.overwrite)
     print(f"wrote {args.out}: {ds}")
     return 0
 
 
 def _cmd_import_minari(args: argparse.Namespace) -> int:
+    from pbicrl.envs.minari_io import require_minari
     from pbicrl.io import from_minari, load_feature_function
 
-    _check_out(args.out, args.overwrite)
+    groups_file = Path(args.groups) if args.groups and args.groups.endswith(".json") else _spec_file(args.groups)
+    _check_out(args.out, args.overwrite, [_spec_file(args.features), groups_file])
+    require_minari()  # before any user code runs: executing a feature file is pointless without minari
     fn = load_feature_function(args.features) if args.features else None
     groups: Any = None
     if args.groups:
@@ -112,11 +249,11 @@ def _cmd_import_minari(args: argparse.Namespace) -> int:
             if isinstance(groups, dict):
                 groups = {str(k): v for k, v in groups.items()}
         else:
-            groups = load_feature_function(args.groups)
+            groups = load_feature_function(args.groups, option="--groups")
     names = [c.strip() for c in args.feature_names.split(",")] if args.feature_names else None
     ds = from_minari(args.dataset_id, fn, groups=groups, root=args.root, feature_names=names,
-                     nominal_weights=args.nominal_weights, states=not args.no_states)
-    ds.save(args.out)
+                     nominal_weights=args.nominal_weights, states=not args.no_states, actions=not args.no_actions)
+    ds.save(args.out, overwrite=args.overwrite)
     print(f"wrote {args.out}: {ds}")
     return 0
 
@@ -135,18 +272,24 @@ def add_subcommands(sub: Any) -> None:
                                    "constraints) and rewards.png (when the dataset is known) for a run.")
     p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
     p.add_argument("--data", type=Path, help="dataset .npz for the rewards plot (default: the one the run used)")
-    p.add_argument("--truth", help="true penalties/parameters: 'name=value,...', one value per feature, or a JSON file")
+    p.add_argument("--truth", help="true penalties/parameters: 'name=value,...' (e.g. in_red=-100,wall.threshold=8; unknown "
+                        "names are an error), one value per feature, or a JSON file")
     p.add_argument("--out", type=Path, help="output directory (default RUN_DIR/plots)")
     p.add_argument("--format", choices=["png", "pdf", "svg"], default="png")
-    p.add_argument("--dpi", type=_positive_int, default=110)
+    p.add_argument("--dpi", type=_positive_int, default=None, help="resolution of PNG figures (default 200)")
     p.set_defaults(func=_cmd_plot)
 
     p = sub.add_parser("export", help="export a run to ArviZ NetCDF",
                        description="Write the posterior as ArviZ InferenceData (arviz < 1) or DataTree (arviz >= 1) "
-                                   "in NetCDF; variables indicator, penalty, penalty_weight, parameter, "
-                                   "log-likelihood, with the feature names as coordinates.")
+                                   "in NetCDF: posterior indicator, penalty (c*w_p; penalty_weight for the paper "
+                                   "sampler only), parameter; log_likelihood = each trajectory's share, for az.loo; "
+                                   "sample_stats = total log-likelihood, lp, log_prior.")
     p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
     p.add_argument("--netcdf", type=Path, help="output .nc file (default RUN_DIR/posterior.nc)")
+    p.add_argument("--data", type=Path, help="dataset of the run (default: the one recorded in the run)")
+    p.add_argument("--pointwise-draws", type=_positive_int, default=500,
+                   help="draws per chain for the per-trajectory log-likelihood (default 500)")
+    p.add_argument("--no-pointwise", action="store_true", help="no per-trajectory log-likelihood")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=_cmd_export)
 
@@ -163,20 +306,24 @@ def add_subcommands(sub: Any) -> None:
         q.add_argument("--action-cols", help="comma-separated action columns (optional)")
         q.add_argument("--step-col", help="column ordering the rows of a trajectory (default: file order)")
         q.add_argument("--nominal-weights", type=_floats, help="known nominal weights, one per feature column")
+        q.add_argument("--group-order", help="group names best first, when the group column holds names: "
+                                             "'good,bad,very bad' (default: groups are integers, 1 = best)")
         if kind == "csv":
-            q.add_argument("--delimiter", help="field separator (default ',')")
+            q.add_argument("--delimiter", help="field separator, one character or 'tab' (default ',')")
         q.add_argument("--overwrite", action="store_true")
         q.set_defaults(func=_cmd_import_table, format=kind)
     q = isub.add_parser("minari", help="a local Minari dataset plus a feature function")
     q.add_argument("dataset_id", help="Minari dataset id (read locally, never downloaded)")
     q.add_argument("--out", type=Path, required=True, help="output dataset .npz")
-    q.add_argument("--features", help="feature function 'module:function' or 'file.py:function', "
-                                      "episode -> (T, d) array (default: infos['features'])")
+    q.add_argument("--features", help="feature function 'module:function' (a module in the working directory "
+                                      "or installed) or 'file.py:function', episode -> (T, d) array "
+                                      "(default: infos['features'])")
     q.add_argument("--groups", help="JSON file {episode id: group} or [group, ...], or 'module:function' "
                                     "episode -> group (default: infos['group'])")
     q.add_argument("--root", type=Path, help="directory holding Minari datasets")
     q.add_argument("--feature-names", help="comma-separated feature names")
     q.add_argument("--nominal-weights", type=_floats)
     q.add_argument("--no-states", action="store_true", help="do not keep observations as states")
+    q.add_argument("--no-actions", action="store_true", help="do not keep the episodes' actions")
     q.add_argument("--overwrite", action="store_true")
     q.set_defaults(func=_cmd_import_minari)

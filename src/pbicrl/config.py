@@ -26,14 +26,33 @@ class InferConfig:
         K-1 consecutive gaps or a K x K upper-triangular matrix :math:`m_{k\\ell}`.
     beta : float
         Inverse temperature.
-    power : float or "pairs"
-        Likelihood power in (0, 1]; 1 = the paper's likelihood.
-    pairs : "all" or int
-        All cross-group pairs, or that many random pairs per group pair.
+    power : float or "pairs" or None
+        ``pairwise`` only: likelihood power in (0, 1]; 1 (default) = the paper's likelihood.
+    pairs : "all" or int or None
+        ``pairwise`` only: all cross-group pairs (default), or that many random pairs per group pair.
     sampler : "pbicrl" | "paper" | "bpl"
     iterations, burn_in, thin, chains, seed, jobs : int
     sigma, f_s, p_flip, init_scale : sampler settings
-    prior, prior_low, prior_high, prior_mean, prior_scale : weight prior
+    likelihood : "grouped" | "pairwise"
+        ``grouped`` (default): the exact grouped Plackett-Luce likelihood, calibrated for grouped rankings;
+        ``pairwise``: the paper's Eq. 7 over cross-group pairs (``pairs`` and ``power`` apply to it only).
+    prior : "student_t" | "flat" | "normal"
+        Prior on each penalty weight (default ``student_t``: half-Student-t on (-inf, 0]).
+    prior_scale : float
+        ``student_t``/``normal``: scale in units of :math:`1/(\beta\,\mathrm{sd}_j)`, sd_j the spread of
+        feature j's per-trajectory mean (default 2.5), so rescaling a feature rescales only its penalty.
+    prior_abs_scale : float or None
+        An absolute prior scale for every feature instead (overrides ``prior_scale``).
+    prior_df : float
+        Degrees of freedom of the Student-t prior (default 3).
+    prior_low, prior_high : float or None
+        Bounds of the prior (``flat``: default -1000, 1000; others: unbounded).
+    prior_mean : float
+        Location of the ``normal`` prior.
+    penalty_sign : "negative" | "any"
+        ``negative`` (default): a penalty penalises, :math:`w_p \le 0`; ``any``: both signs.
+    alpha : float
+        Level of the identifiability analysis (every cross-group pair ordered with probability >= 1 - alpha).
     indicator_pi : float
         Bernoulli prior probability of each constraint.
     candidates : list of str or int, or None
@@ -49,8 +68,8 @@ class InferConfig:
     nominal_weights: list[float] | None = None
     margins: list | None = None
     beta: float = 1.0
-    power: float | str = 1.0
-    pairs: str | int = "all"
+    power: float | str | None = None
+    pairs: str | int | None = None
     pairs_seed: int = 0
     sampler: str = "pbicrl"
     iterations: int = 400_000
@@ -63,11 +82,16 @@ class InferConfig:
     f_s: int = 4
     p_flip: float = 0.5
     init_scale: float = 1.0
-    prior: str = "flat"
-    prior_low: float = -1000.0
-    prior_high: float = 1000.0
+    likelihood: str = "grouped"
+    prior: str = "student_t"
+    prior_low: float | None = None
+    prior_high: float | None = None
     prior_mean: float = 0.0
-    prior_scale: float = 100.0
+    prior_scale: float = 2.5
+    prior_abs_scale: float | None = None
+    prior_df: float = 3.0
+    penalty_sign: str = "negative"
+    alpha: float = 0.05
     indicator_pi: float = 0.5
     candidates: list | None = None
     constraints: list | None = None
@@ -82,6 +106,8 @@ class InferConfig:
 _TYPES: dict[str, tuple[type, ...]] = {
     "beta": (int, float), "power": (int, float, str), "sigma": (int, float), "p_flip": (int, float), "init_scale": (int, float),
     "prior_low": (int, float), "prior_high": (int, float), "prior_mean": (int, float), "prior_scale": (int, float),
+    "prior_abs_scale": (int, float), "prior_df": (int, float), "penalty_sign": (str,), "likelihood": (str,),
+    "alpha": (int, float),
     "indicator_pi": (int, float), "iterations": (int,), "burn_in": (int,), "thin": (int,), "chains": (int,),
     "seed": (int,), "jobs": (int,), "f_s": (int,), "pairs_seed": (int,), "sampler": (str,), "prior": (str,),
     "pairs": (str, int), "nominal_weights": (list,), "margins": (list,), "candidates": (list,),

@@ -16,32 +16,444 @@ field               shape        meaning
 ``actions``         (S, a) float optional per-state actions
 ``feature_names``   (d,) str     optional feature names
 ``nominal_weights`` (d,) float   optional known nominal weights :math:`w_n`
+``group_names``     (K,) str     optional names of the groups, best first (e.g. good, bad, very bad)
 =================== ============ ==========================================================
+
+Reading is defensive: only regular files are opened (a device or a named pipe is refused, never read),
+every array header is checked before any data is read (an array larger than the archive holds, or than
+this process may allocate, is an error naming the field), and complex values or objects are refused
+rather than converted. Datasets shipped with pbicrl are found by name: ``load_dataset("point_mass")``
+(see :func:`list_shipped_datasets` and :func:`resolve_dataset_path`).
+
+Files are written atomically through temporaries named ``.<target>.tmp-<host>.<pid>.<random>``, so that
+:func:`clean_stale_temporaries` can tell those of killed writers from those of running ones.
 """
 
 from __future__ import annotations
 
+import math
 import os
+import shutil
+import socket
+import stat
 import tempfile
+import time
 import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Sequence
+from typing import IO, Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Dataset", "DatasetError", "load_dataset"]
+__all__ = [
+    "Dataset", "DatasetError", "DatasetNotFoundError", "load_dataset", "resolve_dataset_path",
+    "list_shipped_datasets", "ArrayHeader", "inspect_npz", "memory_limit_bytes", "clean_stale_temporaries",
+    "temporary_prefix", "MAX_GROUPS",
+]
+
+MAX_GROUPS = 1000
+"""Most groups a dataset may have. Groups are compared pairwise (margins are a K x K matrix, every
+group pair a block of comparisons), so ranking thousands of single-trajectory groups is out of reach:
+K = 20,000 would need a 3 GiB margin matrix alone."""
+
+_FIELDS = ("features", "offsets", "group", "states", "actions", "feature_names", "nominal_weights", "group_names")
+_REQUIRED = ("features", "offsets", "group")
+_MAX_HEADER = 10_000  # bytes of an .npy header, as numpy's own default: a larger one is hostile or corrupt
 
 
 class DatasetError(ValueError):
     """Invalid dataset content; the message names the offending field."""
 
 
-def _as_float_2d(name: str, value: ArrayLike) -> NDArray[np.float64]:
+class DatasetNotFoundError(DatasetError, FileNotFoundError):
+    """No dataset file (and no shipped dataset) of that name; both a :class:`DatasetError` and a
+    :class:`FileNotFoundError`."""
+
+
+# ---------------------------------------------------------------------------------------------- shipped data
+def _shipped_dir() -> Path:
+    from importlib import resources
+
+    return Path(str(resources.files("pbicrl") / "data"))
+
+
+def list_shipped_datasets() -> list[str]:
+    """Names of the datasets shipped with pbicrl, e.g. ``["ant", "example", ..., "point_mass"]``.
+
+    Each name works wherever a dataset path does: ``load_dataset(name)``, ``pbicrl infer NAME``,
+    ``data = "NAME"`` in a sweep file.
+    """
+    d = _shipped_dir()
+    if not d.is_dir():
+        return []
+    return sorted(p.stem for p in d.glob("*.npz") if p.is_file())
+
+
+def resolve_dataset_path(name_or_path: str | os.PathLike[str]) -> Path:
+    """The file a dataset argument refers to: an existing file, else a shipped dataset of that name.
+
+    Parameters
+    ----------
+    name_or_path : str or path
+        A path (``demos.npz``, ``~/data/demos.npz``) or the name of a shipped dataset, with or without
+        ``.npz`` (``point_mass``). An existing file of exactly that name wins over a shipped dataset; a
+        directory does not, and neither does ``point_mass.npz`` when the argument is ``point_mass``.
+
+    Returns
+    -------
+    pathlib.Path
+        The file (not checked further: :meth:`Dataset.load` refuses devices, pipes and directories).
+
+    Raises
+    ------
+    DatasetNotFoundError
+        Neither a file nor a shipped dataset; the message lists the shipped names.
+    """
+    text = os.fspath(name_or_path)
+    if not isinstance(text, str) or not text.strip():
+        raise DatasetNotFoundError(f"data: expected a dataset file or the name of a shipped dataset, got {text!r}")
+    p = Path(text).expanduser()
+    if p.is_file():
+        return p
+    if not p.is_absolute() and len(Path(text).parts) == 1:  # a bare name may be a shipped dataset
+        stem = p.stem if p.suffix == ".npz" else p.name
+        shipped = _shipped_dir() / f"{stem}.npz"
+        if shipped.is_file():
+            return shipped
+    if p.exists() or p.is_symlink():
+        return p  # a directory, device, pipe or dangling link: loading says what is wrong with it
+    names = ", ".join(list_shipped_datasets()) or "none"
+    raise DatasetNotFoundError(f"data: {text}: no such file, and no shipped dataset of that name "
+                               f"(shipped datasets: {names})")
+
+
+# ---------------------------------------------------------------------------------------------- memory
+def _fmt_bytes(n: float) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} EiB"  # pragma: no cover - unreachable
+
+
+def memory_limit_bytes() -> int:
+    """Bytes this process can still allocate, at most: the least of physical memory, the remaining
+    address space under ``RLIMIT_AS`` and the remaining memory of a cgroup (container) limit.
+
+    An upper bound used to refuse allocations that cannot succeed (a corrupt header, a typo in a size)
+    with a clear error instead of an out-of-memory kill; not a promise that smaller ones will.
+    """
+    limits: list[int] = []
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        limits.append(int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES")))
+    except (AttributeError, ValueError, OSError):
+        pass
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft != resource.RLIM_INFINITY and soft > 0:
+            used = 0
+            try:  # address space already mapped (libraries, numba, ...) counts against the limit
+                used = int(Path("/proc/self/statm").read_text().split()[0]) * int(os.sysconf("SC_PAGE_SIZE"))
+            except (OSError, ValueError, IndexError):
+                pass
+            limits.append(max(0, int(soft) - used))
+    except (ImportError, ValueError, OSError):
+        pass
+    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            text = Path(limit_file).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit() and int(text) < 1 << 60:  # "max" or a huge number: no limit
+            try:
+                usage = int(Path(usage_file).read_text().strip())
+            except (OSError, ValueError):
+                usage = 0
+            limits.append(max(0, int(text) - usage))
+        break
+    return min(limits) if limits else 1 << 62
+
+
+# ---------------------------------------------------------------------------------------------- safe reading
+def _open_regular(path: Path, what: str) -> IO[bytes]:
+    """Open ``path`` for reading if (and only if) it is a non-empty regular file.
+
+    ``O_NONBLOCK`` makes opening a named pipe return at once instead of waiting for a writer; the type is
+    then checked on the open descriptor, so a file swapped for a pipe after a check cannot slip through.
+    """
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise DatasetNotFoundError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise DatasetError(f"{path}: is a directory, not a {what} file") from None
+    except PermissionError:
+        raise DatasetError(f"{path}: permission denied") from None
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot be opened ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        kind = _file_kind(st.st_mode)
+        if kind is not None:
+            raise DatasetError(f"{path}: is a {kind}, not a regular file; pbicrl reads a {what} only from a "
+                               "regular file")
+        if st.st_size == 0:
+            raise DatasetError(f"{path}: empty file (0 bytes), not a {what} (.npz archive)")
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def _file_kind(mode: int) -> str | None:
+    if stat.S_ISREG(mode):
+        return None
+    for test, name in ((stat.S_ISDIR, "directory"), (stat.S_ISCHR, "character device"),
+                       (stat.S_ISBLK, "block device"), (stat.S_ISFIFO, "named pipe (FIFO)"),
+                       (stat.S_ISSOCK, "socket")):
+        if test(mode):
+            return name
+    return "special file"
+
+
+@dataclass(frozen=True)
+class ArrayHeader:
+    """What the header of one array of a ``.npz`` declares (read without loading the data).
+
+    Attributes
+    ----------
+    shape : tuple of int
+    dtype : numpy.dtype
+    fortran_order : bool
+    data_bytes : int
+        Bytes of array data the member holds after its header (from the archive's directory).
+    """
+
+    shape: tuple[int, ...]
+    dtype: np.dtype
+    fortran_order: bool
+    data_bytes: int
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the array occupies in memory once loaded."""
+        return math.prod(self.shape) * int(self.dtype.itemsize)
+
+
+def _read_header(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: str) -> ArrayHeader:
+    fmt = np.lib.format
+    try:
+        with zf.open(info) as member:
+            version = fmt.read_magic(member)
+            if version == (1, 0):
+                shape, fortran, dtype = fmt.read_array_header_1_0(member, max_header_size=_MAX_HEADER)
+            elif version == (2, 0):
+                shape, fortran, dtype = fmt.read_array_header_2_0(member, max_header_size=_MAX_HEADER)
+            else:
+                raise ValueError(f"unsupported .npy format version {version[0]}.{version[1]}")
+            header_len = member.tell()
+    except Exception as exc:  # anything a hostile or corrupt member raises, zipfile's and numpy's alike
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DatasetError(f"{where}: not a readable array ({msg})") from None
+    if any((not isinstance(n, int)) or n < 0 for n in shape):
+        raise DatasetError(f"{where}: invalid shape {shape} in the array header")
+    return ArrayHeader(tuple(int(n) for n in shape), np.dtype(dtype), bool(fortran), int(info.file_size) - header_len)
+
+
+def _check_header(h: ArrayHeader, where: str, *, what: str, allow_objects: bool = False) -> None:
+    if h.dtype.hasobject and not allow_objects:
+        raise DatasetError(f"{where}: contains Python objects (pickles), which are not read for safety; "
+                           "store text as a string array (np.array(names, dtype=str))")
+    if h.nbytes > h.data_bytes:
+        raise DatasetError(f"{where}: the header declares shape {h.shape} ({h.dtype}, {_fmt_bytes(h.nbytes)}) "
+                           f"but the {what} holds only {_fmt_bytes(max(h.data_bytes, 0))} of data (truncated "
+                           "or corrupt file)")
+
+
+def inspect_npz(path: str | os.PathLike[str], *, what: str = "dataset") -> dict[str, ArrayHeader]:
+    """Check a ``.npz`` archive without loading its arrays; returns each array's header by name.
+
+    Refuses (with :class:`DatasetError` naming the file and the array) anything but a non-empty regular
+    file, a file that is not a zip archive, an unreadable or oversized (> 10,000 bytes) array header, an
+    array of Python objects, an array larger than the data its member holds, and arrays that together
+    exceed :func:`memory_limit_bytes`.
+
+    Parameters
+    ----------
+    path : path
+    what : str
+        What the file is, for messages ("dataset", "chains file", ...).
+    """
+    path = Path(path)
+    with _open_regular(path, what) as fh:
+        return _inspect_open(fh, path, what)[1]
+
+
+def _inspect_open(fh: IO[bytes], path: Path, what: str, fields: Sequence[str] | None = None
+                  ) -> tuple[zipfile.ZipFile, dict[str, ArrayHeader]]:
+    try:
+        zf = zipfile.ZipFile(fh)
+    except zipfile.BadZipFile:
+        raise DatasetError(f"{path}: not a readable .npz archive (not a zip file)") from None
+    except Exception as exc:  # truncated central directory, bad offsets, ...
+        raise DatasetError(f"{path}: not a readable .npz archive ({exc})") from None
+    headers: dict[str, ArrayHeader] = {}
+    for info in zf.infolist():
+        if info.is_dir():
+            continue
+        name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+        headers[name] = _read_header(zf, info, f"{path}: field '{name}'")
+    for name, h in headers.items():
+        _check_header(h, f"{path}: field '{name}'", what="archive", allow_objects=True)
+    loaded = [k for k in headers if fields is None or k in fields]  # only what will be read counts
+    total = sum(headers[k].nbytes for k in loaded)
+    limit = memory_limit_bytes()
+    if total > limit:
+        big = max(loaded, key=lambda k: headers[k].nbytes)
+        h = headers[big]
+        raise DatasetError(f"{path}: field '{big}' has shape {h.shape} ({h.dtype}, {_fmt_bytes(h.nbytes)}); the "
+                           f"arrays of this {what} need {_fmt_bytes(total)}, more than the {_fmt_bytes(limit)} "
+                           "this process can allocate")
+    return zf, headers
+
+
+def _read_npz(path: Path, fields: Sequence[str], *, what: str) -> tuple[dict[str, NDArray], list[str]]:
+    """Load ``fields`` (those present) of a checked archive; returns them and the names of the others."""
+    with _open_regular(path, what) as fh:
+        zf, headers = _inspect_open(fh, path, what, fields)
+        out: dict[str, NDArray] = {}
+        for name in fields:
+            if name not in headers:
+                continue
+            where = f"{path}: field '{name}'"
+            _check_header(headers[name], where, what="archive")
+            member = f"{name}.npy" if f"{name}.npy" in zf.NameToInfo else name
+            try:
+                with zf.open(member) as fp:
+                    out[name] = np.lib.format.read_array(fp, allow_pickle=False, max_header_size=_MAX_HEADER)
+            except Exception as exc:  # CRC error, truncated deflate stream, ...
+                msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                raise DatasetError(f"{where}: not readable ({msg})") from None
+        return out, [k for k in headers if k not in fields]
+
+
+# ---------------------------------------------------------------------------------------------- temporaries
+def _host() -> str:
+    """This machine's name as it appears in temporary names (letters, digits, ``-`` and ``_``)."""
+    name = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in socket.gethostname())
+    return name[:40] or "host"
+
+
+def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host is running (a zombie counts as dead)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except OSError:
+        return True
+    try:  # a killed process stays a zombie until its new parent reaps it
+        text = Path(f"/proc/{pid}/stat").read_text()
+        return text[text.rindex(")") + 2] not in "ZX"
+    except (OSError, ValueError, IndexError):
+        return True
+
+
+def temporary_prefix(target: str | os.PathLike[str], kind: str = "tmp") -> str:
+    """Name prefix of a temporary for ``target``: ``.<name>.<kind>-<host>.<pid>.``.
+
+    Writers that create their temporaries with it (``tempfile.mkdtemp(prefix=..., dir=target.parent)``) let
+    :func:`clean_stale_temporaries` remove those of killed processes. ``kind`` is ``"tmp"`` (the new content,
+    before its rename) or ``"old"`` (the previous content, moved aside while the new one takes its place).
+    """
+    if kind not in ("tmp", "old"):
+        raise ValueError(f"kind: expected 'tmp' or 'old', got {kind!r}")
+    return f".{Path(target).name}.{kind}-{_host()}.{os.getpid()}."
+
+
+def clean_stale_temporaries(target: str | os.PathLike[str], *, legacy_age_s: float = 3600.0) -> list[Path]:
+    """Remove the temporaries that killed writers left beside ``target``; returns what was removed.
+
+    An atomic writer of ``target`` (a run directory, a dataset file) works in ``.<name>.tmp-*`` and, when
+    replacing, moves the previous content into ``.<name>.old-*`` before renaming the new one into place. A
+    writer killed at the wrong moment leaves them behind. Temporaries named by :func:`temporary_prefix`
+    are stale when their process (on this host) is gone; older names without a process id are stale
+    after ``legacy_age_s`` seconds. Temporaries of running writers and of other hosts are kept.
+
+    If ``target`` is missing but a stale ``.old-*`` still holds the previous content (the writer died
+    between its two renames), that content is put back: a killed write never loses the earlier results.
+    """
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    prefix = f".{target.name}."
+    try:
+        names = sorted(e.name for e in os.scandir(parent) if e.name.startswith(prefix))
+    except OSError:
+        return []
+    host, now = _host(), time.time()
+    stale: list[tuple[str, Path]] = []
+    for name in names:
+        kind, sep, rest = name[len(prefix):].partition("-")
+        if not sep or kind not in ("tmp", "old"):
+            continue
+        path = parent / name
+        parts = rest.split(".")
+        if len(parts) >= 3 and parts[1].isdigit():  # .<name>.<kind>-<host>.<pid>.<random>
+            if parts[0] != host or _pid_alive(int(parts[1])):
+                continue
+        else:  # written before temporaries carried their process id: only age tells
+            try:
+                if now - path.lstat().st_mtime < legacy_age_s:
+                    continue
+            except OSError:
+                continue
+        stale.append((kind, path))
+    removed: list[Path] = []
+    for kind, path in sorted(stale, key=lambda kp: kp[0] != "old"):  # restore before deleting anything
+        if kind == "old" and not (target.exists() or target.is_symlink()):
+            inner = path / "old" if path.is_dir() and (path / "old").exists() else None
+            if inner is not None:
+                try:
+                    os.replace(inner, target)
+                except OSError:
+                    continue  # could not restore: keep the copy rather than delete it
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError:
+            continue
+        removed.append(path)
+    return removed
+
+
+# ---------------------------------------------------------------------------------------------- validation
+def _as_float_2d(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    raw = value if isinstance(value, np.ndarray) else None
+    try:
+        if raw is None:
+            raw = np.asarray(value)
+        if raw.dtype.kind == "c":
+            # a float cast would drop the imaginary part without a word
+            raise DatasetError(f"{name}: complex values (dtype {raw.dtype}) are not supported; store the real "
+                               "and imaginary parts as separate columns")
+        arr = np.asarray(raw, dtype=np.float64)
+    except DatasetError:
+        raise
     except (TypeError, ValueError) as exc:
         raise DatasetError(f"{name}: values must be numeric ({exc})") from None
     if arr.ndim == 1:
@@ -54,6 +466,52 @@ def _as_float_2d(name: str, value: ArrayLike) -> NDArray[np.float64]:
     return np.ascontiguousarray(arr)
 
 
+def _as_names(name: str, value: Any) -> tuple[str, ...]:
+    """Text labels from a sequence of str or bytes (UTF-8); anything else is an error naming ``name``."""
+    if isinstance(value, (str, bytes)):
+        raise DatasetError(f"{name}: expected a sequence of names, got the single string {value!r}")
+    if isinstance(value, np.ndarray):
+        if value.ndim != 1:
+            raise DatasetError(f"{name}: expected a 1-D array of names, got shape {value.shape}")
+        items = value.tolist()
+    else:
+        try:
+            items = list(value)
+        except TypeError:
+            raise DatasetError(f"{name}: expected a sequence of names, got {type(value).__name__}") from None
+    out = []
+    for i, item in enumerate(items):
+        if isinstance(item, bytes):  # e.g. an 'S' array: str() would give "b'speed'"
+            try:
+                item = item.decode("utf-8")
+            except UnicodeDecodeError:
+                raise DatasetError(f"{name}: name {i} ({item!r}) is not UTF-8 text") from None
+        if not isinstance(item, str):
+            raise DatasetError(f"{name}: name {i} is {type(item).__name__} {item!r}, expected text")
+        if not item.strip():
+            raise DatasetError(f"{name}: name {i} is empty")
+        out.append(str(item))
+    return tuple(out)
+
+
+def _as_vector(name: str, value: ArrayLike, d: int) -> NDArray[np.float64]:
+    try:
+        raw = np.asarray(value)
+        if raw.dtype.kind == "c":
+            raise DatasetError(f"{name}: complex values (dtype {raw.dtype}) are not supported")
+        vec = np.asarray(raw, dtype=np.float64).reshape(-1)
+    except DatasetError:
+        raise
+    except (TypeError, ValueError):
+        raise DatasetError(f"{name}: values must be numeric") from None
+    if vec.shape != (d,):
+        raise DatasetError(f"{name}: expected {d} values (one per feature), got {vec.size}")
+    if not np.all(np.isfinite(vec)):
+        raise DatasetError(f"{name}: contains NaN or inf")
+    return vec
+
+
+# ---------------------------------------------------------------------------------------------- the dataset
 @dataclass(frozen=True, eq=False)
 class Dataset:
     """Grouped demonstrations with per-state features.
@@ -61,21 +519,25 @@ class Dataset:
     Parameters
     ----------
     features : ndarray, shape (S, d)
-        Per-state features :math:`\\phi(s)` of all trajectories, stacked.
+        Per-state features :math:`\\phi(s)` of all trajectories, stacked. Real numbers (complex values are
+        refused, not truncated).
     offsets : ndarray, shape (N + 1,)
         Trajectory boundaries: trajectory ``i`` is ``features[offsets[i]:offsets[i+1]]``.
         Must start at 0, be strictly increasing (no empty trajectory) and end at ``S``.
     group : ndarray, shape (N,)
         Positive integer group labels; 1 is the most preferred group. Any labels
-        ``K >= 2`` distinct values; ranking follows their numeric order.
+        ``K >= 2`` distinct values (at most :data:`MAX_GROUPS`); ranking follows their numeric order.
     states : ndarray, shape (S, k), optional
         Per-state states (e.g. positions), needed by parametric constraints.
     actions : ndarray, shape (S, a), optional
         Per-state actions.
-    feature_names : tuple of str, length d, optional
-        Defaults to ``("f0", "f1", ...)``.
+    feature_names : sequence of str, length d, optional
+        Defaults to ``("f0", "f1", ...)``. Bytes are decoded as UTF-8.
     nominal_weights : ndarray, shape (d,), optional
         Known nominal weights :math:`w_n`.
+    group_names : sequence of str, length K, optional
+        Names of the groups in preference order (best first): ``group_names[k]`` names the ``k``-th
+        smallest label. Empty (the default) means unnamed.
 
     Raises
     ------
@@ -90,6 +552,7 @@ class Dataset:
     actions: NDArray[np.float64] | None = None
     feature_names: tuple[str, ...] = field(default=())
     nominal_weights: NDArray[np.float64] | None = None
+    group_names: tuple[str, ...] = field(default=())
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -103,6 +566,8 @@ class Dataset:
         if not np.issubdtype(offsets.dtype, np.integer):
             if not np.issubdtype(offsets.dtype, np.floating) or not np.all(offsets == np.round(offsets)):
                 raise DatasetError(f"offsets: must be integers, got dtype {offsets.dtype}")
+            if not np.all(np.abs(offsets) < 2**53):
+                raise DatasetError("offsets: values too large to be row numbers")
         offsets = offsets.astype(np.int64)
         if offsets[0] != 0:
             raise DatasetError(f"offsets: must start at 0, starts at {offsets[0]}")
@@ -120,16 +585,25 @@ class Dataset:
         if group.shape != (N,):
             raise DatasetError(f"group: expected shape ({N},) (one label per trajectory), got {group.shape}")
         if not np.issubdtype(group.dtype, np.integer):
-            if np.issubdtype(group.dtype, np.floating) and np.all(np.isfinite(group)) and np.all(group == np.round(group)):
+            whole = np.issubdtype(group.dtype, np.floating) and np.all(np.isfinite(group)) \
+                and np.all(group == np.round(group)) and np.all(np.abs(group) < 2**53)
+            if whole:
                 group = group.astype(np.int64)
             else:
                 raise DatasetError(f"group: labels must be positive integers, got dtype {group.dtype}")
         group = group.astype(np.int64)
         if np.any(group < 1):
             raise DatasetError(f"group: labels must be positive integers (1 = most preferred), got {int(group.min())}")
-        if np.unique(group).size < 2:
+        labels = np.unique(group)
+        if labels.size < 2:
             raise DatasetError("group: need at least two non-empty groups to rank, found "
-                               f"{np.unique(group).size} ({np.unique(group).tolist()})")
+                               f"{labels.size} ({labels.tolist()})")
+        if labels.size > MAX_GROUPS:
+            K = int(labels.size)
+            raise DatasetError(
+                f"group: {K:,} distinct groups; groups are compared pairwise (the margins alone are a "
+                f"{K:,} x {K:,} matrix, {_fmt_bytes(8.0 * K * K)}), so at most {MAX_GROUPS:,} groups are supported. "
+                "Merge the labels into a few ranked groups (e.g. by quantiles of your score)")
 
         states = None if self.states is None else _as_float_2d("states", self.states)
         if states is not None and states.shape[0] != S:
@@ -138,22 +612,23 @@ class Dataset:
         if actions is not None and actions.shape[0] != S:
             raise DatasetError(f"actions: expected {S} rows (one per feature row), got {actions.shape[0]}")
 
-        names = tuple(str(n) for n in self.feature_names) if len(self.feature_names) else tuple(f"f{j}" for j in range(d))
+        given = self.feature_names if self.feature_names is not None else ()
+        names = _as_names("feature_names", given)
+        names = names if names else tuple(f"f{j}" for j in range(d))
         if len(names) != d:
             raise DatasetError(f"feature_names: expected {d} names (one per feature column), got {len(names)}")
         if len(set(names)) != d:
             raise DatasetError(f"feature_names: names must be unique, got {list(names)}")
 
-        wn = None
-        if self.nominal_weights is not None:
-            try:
-                wn = np.asarray(self.nominal_weights, dtype=np.float64).reshape(-1)
-            except (TypeError, ValueError):
-                raise DatasetError("nominal_weights: values must be numeric") from None
-            if wn.shape != (d,):
-                raise DatasetError(f"nominal_weights: expected {d} values (one per feature), got {wn.size}")
-            if not np.all(np.isfinite(wn)):
-                raise DatasetError("nominal_weights: contains NaN or inf")
+        wn = None if self.nominal_weights is None else _as_vector("nominal_weights", self.nominal_weights, d)
+
+        gnames = _as_names("group_names", self.group_names if self.group_names is not None else ())
+        if gnames:
+            if len(gnames) != labels.size:
+                raise DatasetError(f"group_names: expected {labels.size} names (one per group, best first), "
+                                   f"got {len(gnames)}")
+            if len(set(gnames)) != len(gnames):
+                raise DatasetError(f"group_names: names must be unique, got {list(gnames)}")
 
         set_(self, "features", feats)
         set_(self, "offsets", offsets)
@@ -162,6 +637,7 @@ class Dataset:
         set_(self, "actions", actions)
         set_(self, "feature_names", names)
         set_(self, "nominal_weights", wn)
+        set_(self, "group_names", gnames)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -174,6 +650,7 @@ class Dataset:
         actions: Sequence[ArrayLike] | None = None,
         feature_names: Sequence[str] | None = None,
         nominal_weights: ArrayLike | None = None,
+        group_names: Sequence[str] | None = None,
     ) -> "Dataset":
         """Build from a list of per-trajectory arrays.
 
@@ -184,13 +661,21 @@ class Dataset:
         states, actions : sequence of arrays, each (T_i, k), optional
         feature_names : sequence of str, optional
         nominal_weights : array-like, (d,), optional
+        group_names : sequence of str, optional
+            One per group, best first.
         """
         if len(features) == 0:
             raise DatasetError("features: no trajectories given")
         blocks = []
         for i, f in enumerate(features):
             try:
-                a = np.asarray(f, dtype=np.float64)
+                raw = np.asarray(f)
+                if raw.dtype.kind == "c":
+                    raise DatasetError(f"features: trajectory {i} has complex values (dtype {raw.dtype}), which "
+                                       "are not supported; store real and imaginary parts as separate features")
+                a = np.asarray(raw, dtype=np.float64)
+            except DatasetError:
+                raise
             except (TypeError, ValueError) as exc:
                 raise DatasetError(f"features: trajectory {i} is not numeric ({exc})") from None
             if a.ndim == 1:
@@ -212,9 +697,8 @@ class Dataset:
                 raise DatasetError(f"{name}: expected {len(blocks)} trajectories, got {len(seq)}")
             parts = []
             for i, s in enumerate(seq):
-                a = np.asarray(s, dtype=np.float64)
-                a = a[:, None] if a.ndim == 1 else a
-                if a.ndim != 2 or a.shape[0] != lengths[i]:
+                a = _as_float_2d(f"{name}: trajectory {i}", s)
+                if a.shape[0] != lengths[i]:
                     raise DatasetError(f"{name}: trajectory {i} must have {lengths[i]} rows, got shape {a.shape}")
                 parts.append(a)
             return np.concatenate(parts, axis=0)
@@ -225,8 +709,9 @@ class Dataset:
             group=np.asarray(group),
             states=stack("states", states),
             actions=stack("actions", actions),
-            feature_names=tuple(feature_names) if feature_names is not None else (),
+            feature_names=feature_names if feature_names is not None else (),
             nominal_weights=nominal_weights,
+            group_names=group_names if group_names is not None else (),
         )
 
     # ------------------------------------------------------------------ properties
@@ -254,6 +739,13 @@ class Dataset:
     def n_groups(self) -> int:
         """Number of non-empty groups ``K``."""
         return int(self.group_labels.size)
+
+    def group_name(self, label: int) -> str:
+        """The name of group ``label`` (from :attr:`group_names`), else ``"G<label>"``."""
+        labels = self.group_labels.tolist()
+        if int(label) not in labels:
+            raise DatasetError(f"group: no group with label {label}; labels are {labels}")
+        return self.group_names[labels.index(int(label))] if self.group_names else f"G{int(label)}"
 
     @cached_property
     def mean_features(self) -> NDArray[np.float64]:
@@ -286,6 +778,10 @@ class Dataset:
             raise DatasetError(f"subset: indices must lie in [0, {self.n_trajectories})")
         rows = np.concatenate([np.arange(self.offsets[i], self.offsets[i + 1]) for i in idx])
         lengths = self.lengths[idx]
+        names = ()
+        if self.group_names:  # keep the names of the groups that remain
+            by_label = dict(zip(self.group_labels.tolist(), self.group_names))
+            names = tuple(by_label[k] for k in np.unique(self.group[idx]).tolist())
         return Dataset(
             features=self.features[rows],
             offsets=np.concatenate([[0], np.cumsum(lengths)]),
@@ -294,6 +790,7 @@ class Dataset:
             actions=None if self.actions is None else self.actions[rows],
             feature_names=self.feature_names,
             nominal_weights=self.nominal_weights,
+            group_names=names,
         )
 
     def sample_per_group(self, n: int, seed: int | np.random.Generator | None = 0) -> "Dataset":
@@ -311,14 +808,35 @@ class Dataset:
     def with_nominal_weights(self, nominal_weights: ArrayLike) -> "Dataset":
         """Copy with other nominal weights :math:`w_n`."""
         return Dataset(self.features, self.offsets, self.group, self.states, self.actions,
-                       self.feature_names, np.asarray(nominal_weights, dtype=np.float64))
+                       self.feature_names, np.asarray(nominal_weights, dtype=np.float64), self.group_names)
 
     # ------------------------------------------------------------------ I/O
-    def save(self, path: str | os.PathLike[str], *, compress: bool = True) -> Path:
-        """Write the dataset to ``path`` (``.npz``) atomically: a crash never leaves a partial file."""
+    def save(self, path: str | os.PathLike[str], *, compress: bool = True, overwrite: bool = True) -> Path:
+        """Write the dataset to ``path`` (``.npz``) atomically: a crash never leaves a partial file.
+
+        Parameters
+        ----------
+        path : path
+            ``.npz`` is appended if the name has another suffix or none.
+        compress : bool
+        overwrite : bool
+            Replace an existing file. With False an existing file is an error, also one that appears
+            while this one is being written (the final step cannot replace it).
+
+        Raises
+        ------
+        FileExistsError
+            ``path`` exists and ``overwrite`` is false.
+        DatasetError
+            ``path`` is a directory.
+        """
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+        if path.is_dir():
+            raise DatasetError(f"path: {path} is a directory; give a file name such as {path / 'demos.npz'}")
+        if path.exists() and not overwrite:
+            raise FileExistsError(f"path: {path} already exists; choose another name or pass overwrite=True")
         arrays: dict[str, NDArray] = {
             "features": self.features, "offsets": self.offsets, "group": self.group,
             "feature_names": np.array(self.feature_names, dtype=np.str_),
@@ -329,54 +847,78 @@ class Dataset:
             arrays["actions"] = self.actions
         if self.nominal_weights is not None:
             arrays["nominal_weights"] = self.nominal_weights
+        if self.group_names:
+            arrays["group_names"] = np.array(self.group_names, dtype=np.str_)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=path.parent)
+        clean_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
                 (np.savez_compressed if compress else np.savez)(fh, **arrays)
             os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
-            os.replace(tmp, path)
-        except BaseException:
+            if overwrite:
+                os.replace(tmp, path)
+            else:
+                _rename_no_clobber(tmp, path)
+        finally:
             Path(tmp).unlink(missing_ok=True)
-            raise
         return path
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> "Dataset":
-        """Read and validate a dataset written by :meth:`save` (or by hand, see module docs)."""
+        """Read and validate a dataset file written by :meth:`save` (or by hand, see module docs).
+
+        Only a path: :func:`load_dataset` also takes the names of shipped datasets.
+
+        Raises
+        ------
+        DatasetNotFoundError
+            No such file.
+        DatasetError
+            Not a regular file, not an ``.npz`` archive, an array header that declares more data than the
+            file holds or than fits in memory, pickled objects, a missing or invalid field.
+        """
         path = Path(path)
-        if not path.exists():
-            raise DatasetError(f"{path}: no such file")
-        if not zipfile.is_zipfile(path):
-            raise DatasetError(f"{path}: not a readable .npz archive (not a zip file)")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                content = {k: z[k] for k in z.files}
-        except ValueError as exc:
-            if "pickle" in str(exc).lower():
-                raise DatasetError(f"{path}: contains Python objects (pickles), which are not read for "
-                                   "safety; store feature_names as a string array") from None
-            raise DatasetError(f"{path}: not a readable .npz archive ({exc})") from None
-        except Exception as exc:  # zipfile / OSError: corrupt file
-            raise DatasetError(f"{path}: not a readable .npz archive ({exc})") from None
-        missing = [k for k in ("features", "offsets", "group") if k not in content]
+        content, unknown = _read_npz(path, _FIELDS, what="dataset")
+        missing = [k for k in _REQUIRED if k not in content]
         if missing:
             raise DatasetError(f"{path}: missing required field(s) {', '.join(missing)}")
-        names = content.get("feature_names")
-        return cls(
-            features=content["features"],
-            offsets=content["offsets"],
-            group=content["group"],
-            states=content.get("states"),
-            actions=content.get("actions"),
-            feature_names=tuple(str(n) for n in names.tolist()) if names is not None and names.size else (),
-            nominal_weights=content.get("nominal_weights"),
-        )
+        if unknown:
+            from pbicrl.errors import warn
+
+            warn(f"{path}: ignored unknown field(s) {', '.join(repr(k) for k in unknown)}; the fields of a dataset "
+                 f"are {', '.join(_FIELDS)}")
+        try:
+            return cls(
+                features=content["features"],
+                offsets=content["offsets"],
+                group=content["group"],
+                states=content.get("states"),
+                actions=content.get("actions"),
+                feature_names=content.get("feature_names", ()),
+                nominal_weights=content.get("nominal_weights"),
+                group_names=content.get("group_names", ()),
+            )
+        except DatasetError as exc:
+            raise DatasetError(f"{path}: {exc}") from None
 
     def __repr__(self) -> str:
-        counts = ", ".join(f"G{k}: {c}" for k, c in self.group_counts().items())
+        counts = ", ".join(f"G{k}{' ' + repr(self.group_name(k)) if self.group_names else ''}: {c}"
+                           for k, c in self.group_counts().items())
         return (f"Dataset(N={self.n_trajectories}, d={self.n_features}, states={self.lengths.sum()}, "
                 f"groups={{{counts}}}, features={list(self.feature_names)})")
+
+
+def _rename_no_clobber(src: str | os.PathLike[str], dst: Path) -> None:
+    """Move ``src`` to ``dst`` unless ``dst`` exists (atomically where hard links work)."""
+    try:
+        os.link(src, dst)  # fails if dst exists, even if it appeared a moment ago
+    except FileExistsError:
+        raise FileExistsError(f"path: {dst} already exists; choose another name or pass overwrite=True") from None
+    except OSError:  # no hard links on this file system: check, then rename
+        if dst.exists():
+            raise FileExistsError(f"path: {dst} already exists; choose another name or pass overwrite=True") from None
+        os.replace(src, dst)
 
 
 def _umask() -> int:
@@ -385,6 +927,13 @@ def _umask() -> int:
     return mask
 
 
-def load_dataset(path: str | os.PathLike[str]) -> Dataset:
-    """Read a ``.npz`` dataset; see :class:`Dataset`."""
-    return Dataset.load(path)
+def load_dataset(name_or_path: str | os.PathLike[str]) -> Dataset:
+    """Read a dataset: a ``.npz`` file (see :class:`Dataset`) or the name of a shipped one.
+
+    Parameters
+    ----------
+    name_or_path : str or path
+        ``"demos.npz"``, or a shipped dataset such as ``"point_mass"`` (:func:`list_shipped_datasets`);
+        see :func:`resolve_dataset_path`.
+    """
+    return Dataset.load(resolve_dataset_path(name_or_path))

@@ -13,7 +13,10 @@ unavailable.
 
 A quantity that never changes in any chain (a feature that is not a candidate, or an indicator that is on
 in every draw) has no R-hat or ESS (``None``) and raises no warning; chains that are each constant but at
-different values get :math:`\\hat R = \\infty`.
+different values get :math:`\\hat R = \\infty`. Features the rankings carry no information about (a
+posterior's ``not_identifiable()``, e.g. a feature that is constant across trajectories) are not diagnosed
+either: their penalty and indicator are the prior's, so an R-hat of them says nothing about the data; they
+get ``None`` and are listed in :attr:`Diagnostics.excluded`.
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ from __future__ import annotations
 import math
 import warnings as _warnings
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from collections.abc import Mapping
 from typing import Any, Sequence
 
 import numpy as np
@@ -87,6 +91,9 @@ class Diagnostics:
         Why something is unavailable (e.g. ESS without ArviZ).
     rhat_max, ess_min : float
         Warning thresholds.
+    excluded : dict
+        ``{feature: reason}`` of features not diagnosed because the rankings carry no information about them
+        (their penalty and indicator entries are ``None``).
     """
 
     backend: str
@@ -96,6 +103,7 @@ class Diagnostics:
     message: str | None = None
     rhat_max: float = RHAT_MAX
     ess_min: float = ESS_MIN
+    excluded: dict[str, str] = field(default_factory=dict)
 
     def get(self, kind: str, stat: str) -> dict[str, float | None]:
         """``{name: value}`` of one statistic (``rhat``, ``ess_bulk``, ``ess_tail``) for one kind."""
@@ -117,19 +125,25 @@ class Diagnostics:
             return fn(xs) if xs else None
         return {"rhat": pick("rhat", max), "ess_bulk": pick("ess_bulk", min), "ess_tail": pick("ess_tail", min)}
 
-    def cells(self, kind: str, name: str) -> str:
+    def cells(self, kind: str, name: str, *, compact: bool = False) -> str:
         """``R-hat  ESS bulk  ESS tail`` columns for a results table (widths 6, 8, 8).
 
-        ``kind="feature"`` shows the worse of the feature's penalty and indicator.
+        ``kind="feature"`` shows the worse of the feature's penalty and indicator. ``compact``: two columns,
+        ``R-hat  ESS`` (widths 6, 6), the ESS being the smaller of bulk and tail.
         """
         v = self.worst_of(("penalty", "indicator") if kind == "feature" else (kind,), name)
+        if compact:
+            ess = [x for x in (v["ess_bulk"], v["ess_tail"]) if x is not None]
+            return f"{_fmt(v['rhat'], 3):>6}  {_fmt(min(ess) if ess else None, 0):>6}"
         return f"{_fmt(v['rhat'], 3):>6}  {_fmt(v['ess_bulk'], 0):>8}  {_fmt(v['ess_tail'], 0):>8}"
 
-    def footer(self) -> str:
-        """One line saying where the R-hat / ESS columns come from."""
+    def footer(self, *, compact: bool = False) -> str:
+        """One line saying where the R-hat / ESS columns come from (``compact``: as :meth:`cells` makes them)."""
         src = ("rank-normalised split R-hat and ESS (ArviZ)" if self.backend.startswith("arviz")
                else "classic split R-hat, no ESS")
-        line = f"diagnostics: {src}; per feature the worse of c and c*w_p; '-' = constant or undefined"
+        ess = "; ESS = the smaller of bulk and tail" if compact and self.backend.startswith("arviz") else ""
+        line = (f"diagnostics: {src}; per feature the worse of c and c*w_p{ess}; "
+                "'-' = constant, undefined or not identifiable")
         return line + (f"; {self.message}" if self.message and not self.backend.startswith("arviz") else "")
 
     def warnings(self) -> list[str]:
@@ -161,7 +175,7 @@ class Diagnostics:
 
         return {"backend": self.backend, "chains": self.n_chains, "draws_per_chain": self.n_draws,
                 "thresholds": {"rhat_max": self.rhat_max, "ess_bulk_min": self.ess_min},
-                "message": self.message, "worst": finite(self.worst()),
+                "message": self.message, "worst": finite(self.worst()), "not_identifiable": dict(self.excluded),
                 **{k: {n: finite(v) for n, v in self.values[k].items()} for k in _KINDS if k in self.values}}
 
     def table(self) -> str:
@@ -174,6 +188,9 @@ class Diagnostics:
         for name, v in rows:
             lines.append(f"{name:<{w}}  {_fmt(v['rhat'], 3):>7}  {_fmt(v['ess_bulk'], 0):>8}  {_fmt(v['ess_tail'], 0):>8}")
         lines.append(f"{self.n_chains} chains x {self.n_draws} draws; statistics from {self.backend}")
+        if self.excluded:
+            lines.append("not diagnosed (not identifiable): "
+                         + "; ".join(f"{n} ({r})" for n, r in self.excluded.items()))
         if self.message:
             lines.append(f"note: {self.message}")
         return "\n".join(lines)
@@ -258,7 +275,19 @@ def _active_draws(x: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.stack([r[:n] for r in runs])
 
 
-_CACHE: "weakref.WeakKeyDictionary[Any, tuple[tuple[str], Diagnostics]]" = weakref.WeakKeyDictionary()
+def _not_identifiable(post: Any) -> dict[str, str]:
+    """``post.not_identifiable`` as a ``{name: reason}`` dict (empty when the object has none)."""
+    v = getattr(post, "not_identifiable", None)
+    if callable(v):
+        v = v()
+    if isinstance(v, Mapping):
+        return {str(k): str(r) for k, r in v.items()}
+    if isinstance(v, (list, tuple, set, frozenset)):
+        return {str(k): "not identifiable" for k in v}
+    return {}
+
+
+_CACHE: "weakref.WeakKeyDictionary[Any, tuple[tuple[Any, ...], Diagnostics]]" = weakref.WeakKeyDictionary()
 
 
 def compute(post: Any, *, backend: str = "auto", cache: bool = True) -> Diagnostics:
@@ -268,8 +297,9 @@ def compute(post: Any, *, backend: str = "auto", cache: bool = True) -> Diagnost
     ----------
     post : Posterior or RunRecord
         Anything with ``indicators`` and ``penalty_weights`` (chains, draws, d), ``feature_names`` and
-        ``log_likelihood`` (chains, draws); ``parameters`` (chains, draws, p) and ``parameter_names`` are
-        used when present.
+        ``log_likelihood`` (chains, draws); ``parameters`` (chains, draws, p), ``parameter_names`` and
+        ``not_identifiable`` (a ``{feature: reason}`` mapping, or a method returning one) are used when
+        present.
     backend : {"auto", "arviz", "numpy"}
         ``auto`` uses ArviZ when it is installed. ``arviz`` requires it. ``numpy``: split R-hat only.
     cache : bool
@@ -281,7 +311,8 @@ def compute(post: Any, *, backend: str = "auto", cache: bool = True) -> Diagnost
     """
     if backend not in ("auto", "arviz", "numpy"):
         raise ValueError(f"backend: expected 'auto', 'arviz' or 'numpy', got {backend!r}")
-    key = (backend,)
+    excluded = _not_identifiable(post)
+    key = (backend, tuple(sorted(excluded)))
     if cache:
         try:
             hit = _CACHE.get(post)
@@ -306,14 +337,14 @@ def compute(post: Any, *, backend: str = "auto", cache: bool = True) -> Diagnost
     for kind, by_name in quantities.items():
         values[kind] = {}
         for name, x in by_name.items():
-            if x.shape[1] < 4 or np.all(x == x.flat[0]):
+            if (kind in ("penalty", "indicator") and name in excluded) or x.shape[1] < 4 or np.all(x == x.flat[0]):
                 values[kind][name] = {"rhat": None, "ess_bulk": None, "ess_tail": None}
             elif az is not None:
                 values[kind][name] = _stats_arviz(az, x)
             else:
                 values[kind][name] = _stats_numpy(x)
     diag = Diagnostics(backend=f"arviz {az.__version__}" if az is not None else "numpy", n_chains=int(n_chains),
-                       n_draws=int(n_draws), values=values, message=message)
+                       n_draws=int(n_draws), values=values, message=message, excluded=excluded)
     if cache:
         try:
             _CACHE[post] = (key, diag)

@@ -89,14 +89,9 @@ class MarginTuning:
 
 def _weights_of(post: Posterior, dataset: Dataset, nominal: NDArray, estimator: str) -> tuple[NDArray, NDArray | None]:
     """Total weights over known + parametric features, and the parametric mean-feature columns."""
-    if estimator == "map":
-        eff = post.map_effective_penalty
-        theta = post.map_parameters
-    elif estimator == "mean":
-        eff = post.mean_effective_penalty
-        theta = np.array([v["mean"] if v["mean"] is not None else np.nan for v in post.parameter_summary().values()])
-    else:
-        raise ValueError(f"estimator: expected 'map' or 'mean', got {estimator!r}")
+    eff, theta = post.point_estimate(estimator)
+    eff = np.nan_to_num(np.asarray(eff, dtype=np.float64))
+    theta = np.asarray(theta, dtype=np.float64)
     d = dataset.n_features
     w = np.concatenate([nominal, np.zeros(eff.size - d)]) + eff
     cols = None
@@ -116,7 +111,7 @@ def tune_margins(
     *,
     gap_grid: Sequence[float] = DEFAULT_GAP_GRID,
     candidates: Sequence[ArrayLike] | None = None,
-    estimator: str = "map",
+    estimator: str = "selected",
     progress: bool = True,
     run: Callable[[Margins], Posterior] | None = None,
     **infer_kwargs: Any,
@@ -132,8 +127,9 @@ def tune_margins(
         Values tried for each consecutive gap (all combinations), unless ``candidates`` is given.
     candidates : sequence of margin specifications, optional
         Explicit candidates (K-1 gaps or K x K matrices).
-    estimator : {"map", "mean"}
-        Weights used for the group means.
+    estimator : {"selected", "map", "mean"}
+        Weights used for the group means: ``selected`` (default) = the selected set (P(c=1) > 0.5) with
+        conditional posterior medians; ``map`` = the highest-density draw (the paper's convention).
     run : callable, optional
         ``run(margins) -> Posterior``; default: :func:`pbicrl.infer` with ``infer_kwargs``.
     **infer_kwargs

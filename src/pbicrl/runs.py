@@ -4,6 +4,12 @@
 ``summary.json``, with the same attribute names as :class:`~pbicrl.results.Posterior` (``indicators``,
 ``penalty_weights``, ``log_likelihood``, ``feature_names``, ``map_indicators``, ...), so diagnostics, export
 and plots accept either.
+
+``summary.json`` carries a ``schema_version`` (:data:`pbicrl.results.SCHEMA_VERSION`; files written before
+it existed are version 1). Every version up to the current one loads: the fields added in version 2
+(``selected``, ``most_frequent_set``, conditional medians, ...) are computed from the draws by the
+:class:`~pbicrl.results.DrawsView` methods, so they exist for old runs too; :attr:`RunRecord.identified`
+is ``None`` there. A newer version is refused with a message saying so.
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.results import DrawsView
+from pbicrl.results import SCHEMA_VERSION, DrawsView
 
 __all__ = ["RunRecord", "RunError", "load_run"]
 
@@ -83,6 +89,23 @@ class RunRecord(DrawsView):
         return int(self.summary.get("seed", 0))
 
     @property
+    def schema_version(self) -> int:
+        """Layout version of ``summary.json`` (1 for files written before versions were recorded)."""
+        return int(self.summary.get("schema_version", 1))
+
+    @property
+    def identified(self) -> dict | None:
+        """The identification the run was reported with (``None`` for version-1 runs and runs without one)."""
+        v = self.summary.get("identified")
+        return dict(v) if isinstance(v, dict) else None
+
+    def not_identifiable(self) -> dict[str, str]:
+        """``{feature: reason}`` recorded in ``summary.json`` (empty for version-1 runs); the diagnostics of
+        a loaded run leave these features out, as the run's own summary did."""
+        v = self.summary.get("not_identifiable")
+        return {str(k): str(r) for k, r in v.items()} if isinstance(v, dict) else {}
+
+    @property
     def data_path(self) -> Path | None:
         """The dataset the run used, as recorded in ``summary.json`` (``extra.data.path``), if any."""
         p = self.extra.get("data", {}).get("path")
@@ -106,7 +129,8 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunRecord:
     FileNotFoundError
         If the directory or one of the two files does not exist.
     RunError
-        If a file is malformed (the message names it).
+        If a file is malformed, or ``summary.json`` has a ``schema_version`` newer than this pbicrl reads
+        (the message names the file).
     """
     run = Path(run_dir)
     if not run.is_dir():
@@ -121,6 +145,12 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunRecord:
         raise RunError(f"{sj}: not valid JSON ({exc})") from None
     if not isinstance(summary, dict):
         raise RunError(f"{sj}: expected a JSON object")
+    version = summary.get("schema_version", 1)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise RunError(f"{sj}: 'schema_version' should be a positive integer, got {version!r}")
+    if version > SCHEMA_VERSION:
+        raise RunError(f"{sj}: written by a newer pbicrl (summary.json schema_version {version}); this version "
+                       f"reads versions 1 to {SCHEMA_VERSION}: upgrade pbicrl to read it")
     try:
         with np.load(cz, allow_pickle=False) as z:
             ind = _array(z, "indicators", cz, 3).astype(np.int8)

@@ -3,6 +3,10 @@
 Trajectories are random walks of per-state features; each feature is a constraint indicator or a
 continuous nominal feature. Trajectories are grouped by their true length-normalised return, best first,
 so the ranking is exactly what the true weights imply (optionally with Bradley-Terry noise).
+
+Sizes are checked before anything is generated: a request whose features cannot fit in this process's
+memory (:func:`pbicrl.data.memory_limit_bytes`), or of more than :data:`MAX_TRAJECTORIES` trajectories, is an
+error naming the argument, not an out-of-memory kill minutes later.
 """
 
 from __future__ import annotations
@@ -12,9 +16,42 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbicrl.data import Dataset
+from pbicrl.data import Dataset, _fmt_bytes, memory_limit_bytes
 
-__all__ = ["SyntheticProblem", "make_problem", "make_wall_problem", "make_region_problem"]
+__all__ = ["SyntheticProblem", "make_problem", "make_wall_problem", "make_region_problem", "MAX_TRAJECTORIES"]
+
+MAX_TRAJECTORIES = 10_000_000
+"""Most trajectories one call generates (they are drawn one by one in Python: more would take hours)."""
+
+
+def _group_sizes(n_per_group: int | ArrayLike, n_groups: int) -> NDArray[np.int64]:
+    """Trajectories per group as positive integers, one per group; errors name ``n_per_group``."""
+    if isinstance(n_groups, bool) or not isinstance(n_groups, (int, np.integer)) or n_groups < 2:
+        raise ValueError(f"n_groups: expected an integer >= 2, got {n_groups!r}")
+    raw = np.asarray(n_per_group)
+    if raw.dtype.kind not in "iuf" or raw.ndim > 1 or not np.all(np.isfinite(raw)) or np.any(raw != np.round(raw)):
+        raise ValueError(f"n_per_group: expected a positive integer or one per group, got {n_per_group!r}")
+    if raw.ndim == 1 and raw.size != n_groups:
+        raise ValueError(f"n_per_group: expected one count per group ({n_groups}), got {raw.size}")
+    if np.any(raw < 1):
+        raise ValueError(f"n_per_group: expected positive counts, got {raw.tolist()}")
+    if np.any(raw > MAX_TRAJECTORIES):
+        raise ValueError(f"n_per_group: {int(np.max(raw)):,} trajectories per group is more than the "
+                         f"{MAX_TRAJECTORIES:,} one dataset may have")
+    return np.broadcast_to(raw.astype(np.int64), (n_groups,)).copy()
+
+
+def _check_size(n_total: int, mean_length: float, n_columns: int, what: str = "n_per_group") -> None:
+    """Refuse a dataset that cannot be generated: too many trajectories, or features beyond memory."""
+    if n_total > MAX_TRAJECTORIES:
+        raise ValueError(f"{what}: {n_total:,} trajectories in all is more than {MAX_TRAJECTORIES:,}; ask for fewer")
+    # features, their stacked copy and the validated copy (float64), plus ~1 KiB of Python objects each
+    need = n_total * (3.0 * mean_length * n_columns * 8 + 1024)
+    limit = memory_limit_bytes()
+    if need > limit:
+        per = max(1, int(limit / max(need / n_total, 1.0)))
+        raise ValueError(f"{what}: {n_total:,} trajectories in all need about {_fmt_bytes(need)} of memory, more than "
+                         f"the {_fmt_bytes(limit)} this process can allocate; ask for at most {per:,} in all")
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,9 +119,13 @@ def make_problem(
     wp = np.asarray(penalty, dtype=np.float64)
     if wn.shape != wp.shape or wn.ndim != 1:
         raise ValueError("nominal_weights and penalty must be 1-D arrays of the same length")
-    sizes = np.broadcast_to(np.asarray(n_per_group, dtype=np.int64), (n_groups,))
+    sizes = _group_sizes(n_per_group, n_groups)
     n_total = int(sizes.sum())
     d = wn.size
+    lo, hi = length_range
+    if not (isinstance(lo, (int, np.integer)) and isinstance(hi, (int, np.integer)) and 1 <= lo <= hi):
+        raise ValueError(f"length_range: expected integers 1 <= low <= high, got {length_range!r}")
+    _check_size(n_total, (lo + hi) / 2, d)
     constraint = wp != 0
     if labels not in ("return", "violations"):
         raise ValueError(f"labels: expected 'return' or 'violations', got {labels!r}")
@@ -149,6 +190,10 @@ def make_wall_problem(
     group 2 trajectories cross it. States: ``x`` (k = 1).
     ``true_penalty`` holds the known features' zeros; the wall itself is described by ``wall``.
     """
+    _group_sizes(n_per_group, 2)
+    if isinstance(length, bool) or not isinstance(length, (int, np.integer)) or length < 1:
+        raise ValueError(f"length: expected a positive integer, got {length!r}")
+    _check_size(2 * int(n_per_group), length, 3)
     rng = np.random.default_rng(seed)
     feats, states, group = [], [], []
     for g in (1, 2):
@@ -183,6 +228,10 @@ def make_region_problem(
     ``region="box"``: closed box [3.5, 6.5] x [4, 6] (true parameters ``[3.5, 4, 6.5, 6]``).
     Known feature: step length (nominal weight -1). Returns the problem and the true parameters.
     """
+    _group_sizes(n_per_group, 2)
+    if isinstance(length, bool) or not isinstance(length, (int, np.integer)) or length < 2:
+        raise ValueError(f"length: expected an integer >= 2, got {length!r}")
+    _check_size(2 * int(n_per_group), length, 3)
     rng = np.random.default_rng(seed)
     if region == "ball":
         truth = np.array([5.0, 5.0, 2.0])

@@ -8,6 +8,7 @@ pytest.importorskip("gymnasium_robotics")
 from pbicrl.envs import _mujoco_compat
 from pbicrl.envs.fetch_reach import (
     FETCH_REACH_TASK,
+    START_BOXES,
     START_HIGH,
     START_LOW,
     FetchReachConstrainedEnv,
@@ -93,3 +94,26 @@ def test_moving_through_orange_sets_the_indicator_and_zero_action_truncates(env)
         _, _, term, trunc, _ = env.step([0.0, 0.0, 0.0])
         assert not term
     assert trunc
+
+
+def test_equidistant_start_box_keeps_the_chebyshev_distance_fixed():
+    import itertools
+
+    lo, hi = (np.array(b) for b in START_BOXES["equidistant"])
+    wlo, whi = (np.array(b) for b in START_BOXES["wide"])
+    assert np.all(lo >= wlo) and np.all(hi <= whi)  # inside the box the shipped policies were trained on
+    np.testing.assert_allclose(START_BOXES["wide"], (START_LOW, START_HIGH))
+    goal = np.array(FETCH_REACH_TASK.goal.centre)
+    d = np.abs(np.array(list(itertools.product(*zip(lo, hi)))) - goal)
+    # every start is 0.30-0.35 m from the goal along x and at most that along y and z (box corners suffice)
+    assert np.all((d[:, 0] >= 0.30 - 1e-12) & (d[:, 0] <= 0.35 + 1e-12))
+    assert np.all(d[:, 1:].max(axis=1) <= 0.30 + 1e-12)
+    e = FetchReachConstrainedEnv(start="equidistant")
+    try:
+        for seed in range(3):
+            obs, _ = e.reset(seed=seed)
+            assert np.all(obs >= lo - 0.01) and np.all(obs <= hi + 0.01)
+    finally:
+        e.close()
+    with pytest.raises(ValueError, match="start"):
+        FetchReachConstrainedEnv(start="moon")

@@ -155,3 +155,106 @@ def test_relabelled_warm_start_rescores_the_buffer(smoke_policy, tmp_path):
                      log_every=25, progress=False)
     budget = json.loads((out / "budget.json").read_text())
     assert budget["metadata"]["warm_start"]["source_run"] == str(src) and budget["done_steps"] == 50
+
+
+# ------------------------------------------------------------------ paper protocol
+def test_group_feature_balance_matches_hand_computation():
+    from pbicrl.demonstrators.navigation import group_feature_balance
+
+    # two features, nominal weight only on the first; trajectory means 1, 3 (G1) and 2, 6 (G2)
+    trajs = [np.array([[1.0, 0], [1.0, 1]]), np.array([[3.0, 0]]), np.array([[2.0, 1]]), np.array([[6.0, 0], [6.0, 0]])]
+    ds = Dataset.from_trajectories(trajs, [1, 1, 2, 2], feature_names=("a", "b"), nominal_weights=[1.0, 0.0])
+    fb = group_feature_balance(ds)
+    assert fb["features"] == ["a"]
+    assert fb["mean"]["a"] == {"G1": 2.0, "G2": 4.0}
+    sd1, sd2 = np.std([1, 3], ddof=1), np.std([2, 6], ddof=1)
+    assert fb["sd"]["a"]["G2"] == pytest.approx(sd2)
+    assert fb["smd"]["a"]["G1-G2"] == pytest.approx(-2.0 / np.sqrt((sd1**2 + sd2**2) / 2))
+    assert fb["max_abs_smd"] == pytest.approx(abs(fb["smd"]["a"]["G1-G2"]))
+    assert fb["length"]["G1"]["mean"] == 1.5
+    assert group_feature_balance(ds, ["b"])["mean"]["b"] == {"G1": 0.25, "G2": 0.5}
+    with pytest.raises(ValueError, match="features"):
+        group_feature_balance(ds, ["c"])
+
+
+def test_paper_protocol_keeps_every_rollout_and_labels_from_states(smoke_policy, tmp_path):
+    from pbicrl.demonstrators.navigation import generate_paper_protocol_demos
+
+    # an untrained policy rarely reaches the goal: keep all rollouts to exercise the bookkeeping
+    ds, report, eps = generate_paper_protocol_demos("point_mass", smoke_policy, smoke_policy, tmp_path / "p.npz",
+                                                    p_good=0.5, n_per_group=2, max_episodes=30, batch=10,
+                                                    require_goal=False, return_episodes=True, progress=False,
+                                                    command="cmd")
+    assert report["total_rollouts"] <= 30 and report["total_rollouts"] % 10 == 0
+    assert ds.n_trajectories == report["total_rollouts"]  # nothing dropped
+    roll = report["rollouts"]
+    assert roll["good"]["episodes"] + roll["violating"]["episodes"] == report["total_rollouts"]
+    assert 0 < roll["good"]["episodes"] < report["total_rollouts"]  # both policies used at p = 0.5
+    assert report["filters"]["goal_reached"] == {"applied": False, "rejected": 0,
+                                                 "rejected_per_policy": {"good": 0, "violating": 0}}
+    for i in range(ds.n_trajectories):
+        s = ds.trajectory_states(i)
+        assert ds.group[i] == POINT_MASS_TASK.group(s)
+        x, y = s[0]
+        assert (0 <= x <= 1 and 9 <= y <= 19) or (9 <= x <= 19 and 0 <= y <= 1)  # the env's start edges
+    assert list(ds.group) == sorted(ds.group)  # stored by group
+    assert report["trajectory_policy"] == "".join(e.policy[0] for e in eps)
+    assert report["command"] == "cmd" and report["p_good"] == 0.5 and report["deterministic"] is False
+    saved = json.loads((tmp_path / "p.json").read_text())
+    assert saved["group_counts"] == {f"G{k}": v for k, v in Dataset.load(tmp_path / "p.npz").group_counts().items()}
+    # the same seed gives the same rollouts (stochastic actions included)
+    ds2, _ = generate_paper_protocol_demos("point_mass", smoke_policy, smoke_policy, None, p_good=0.5, n_per_group=2,
+                                           max_episodes=30, batch=10, require_goal=False, progress=False)
+    np.testing.assert_array_equal(ds.states, ds2.states)
+
+
+def test_paper_protocol_mix_extremes_and_goal_filter(smoke_policy):
+    from pbicrl.demonstrators.navigation import generate_paper_protocol_demos
+
+    kw = dict(n_per_group=1, max_episodes=10, batch=10, progress=False)
+    with pytest.raises(RuntimeError, match="groups"):  # one step never reaches the goal: every rollout rejected
+        generate_paper_protocol_demos("point_mass", smoke_policy, smoke_policy, p_good=0.0,
+                                      env_kwargs={"max_steps": 1}, **kw)
+    _, rep = generate_paper_protocol_demos("point_mass", smoke_policy, smoke_policy, p_good=1.0, require_goal=False, **kw)
+    assert rep["rollouts"]["good"]["episodes"] == 10 and rep["rollouts"]["violating"]["episodes"] == 0
+    with pytest.raises(ValueError, match="p_good"):
+        generate_paper_protocol_demos("point_mass", smoke_policy, smoke_policy, p_good=1.5, **kw)
+
+
+def test_paper_protocol_filter_counts_rejections():
+    pytest.importorskip("stable_baselines3")
+    from pbicrl.demonstrators.navigation import generate_paper_protocol_demos
+    from pbicrl.envs.cli import shipped_policy
+
+    # the shipped point-mass policies need ~17-25 steps: an 18-step limit makes many of them miss the goal
+    ds, rep = generate_paper_protocol_demos("point_mass", shipped_policy("point_mass", "good"),
+                                            shipped_policy("point_mass", "violating"), p_good=0.5, n_per_group=1,
+                                            max_episodes=40, batch=20, env_kwargs={"max_steps": 18}, progress=False)
+    rej = rep["filters"]["goal_reached"]
+    assert rej["rejected"] > 0 and rej["rejected"] + ds.n_trajectories == rep["total_rollouts"]
+    assert rej["rejected_per_policy"]["good"] == sum(rep["rollouts"]["good"]["rejected_goal_not_reached_per_group"].values())
+    assert rep["env_kwargs"] == {"max_steps": 18}
+    for i in range(ds.n_trajectories):
+        assert POINT_MASS_TASK.reached(ds.trajectory_states(i)[-1:])[0]
+
+
+def test_cli_paper_protocol(tmp_path, capsys):
+    pytest.importorskip("stable_baselines3")
+    from pbicrl.envs.cli import main
+
+    out = tmp_path / "pm.npz"
+    assert main(["demos", "--env", "point_mass", "--paper-protocol", "-n", "2", "--p-good", "0.2",
+                 "--out", str(out)]) == 0
+    rep = json.loads(out.with_suffix(".json").read_text())
+    assert rep["p_good"] == 0.2 and rep["deterministic"] is False and rep["env_kwargs"] == {"start": "random"}
+    assert min(Dataset.load(out).group_counts().values()) >= 2
+    assert rep["command"] == (f"python -m pbicrl.envs demos --env point_mass --paper-protocol --p-good 0.2 --stochastic "
+                              f"--start random -n 2 --seed 0 --max-episodes 50000 --out {out}")
+    capsys.readouterr()
+    for argv, flag in ((["--p-good", "0.5"], "--p-good"), (["--paper-protocol", "--start", "wide"], "--start"),
+                       (["--paper-protocol", "--g1-from-violating"], "--g1-from-violating"),
+                       (["--deterministic"], "--deterministic")):
+        assert main(["demos", "--env", "point_mass", *argv, "--out", str(tmp_path / "x.npz")]) == 2
+        assert flag in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["demos", "--env", "point_mass", "--paper-protocol", "--p-good", "2", "--out", str(tmp_path / "x.npz")])

@@ -80,3 +80,12 @@ def test_reset_is_seeded():
     a, _ = PointMassEnv().reset(seed=11)
     b, _ = PointMassEnv().reset(seed=11)
     np.testing.assert_array_equal(a, b)
+
+
+def test_every_start_is_19_to_20_steps_of_chebyshev_distance_from_the_goal():
+    # with actions in [-1, 1]^2 the fewest steps to the goal centre is the Chebyshev distance:
+    # the same from every start, so where a start lies does not decide how far a run has to go
+    env = PointMassEnv()
+    starts = np.array([env.reset(seed=s)[0] for s in range(300)], dtype=np.float64)
+    cheb = np.abs(starts - np.array(POINT_MASS_TASK.goal.centre)).max(axis=1)
+    assert np.all((cheb >= 19.0) & (cheb <= 20.0))

@@ -18,8 +18,8 @@ import pytest
 from pbicrl.cli import main
 from pbicrl.experiments.executors import LocalExecutor, SerialExecutor, make_executor
 from pbicrl.experiments.sweep import expand_grid, load_sweep, run_tasks
-from pbicrl.experiments.tasks import (RESULT_FILE, Task, TaskError, canonical_json, find_done, load_result,
-                                      register_task)
+from pbicrl.experiments.tasks import (CACHE_VERSION, RESULT_FILE, Task, TaskError, canonical_json, find_done,
+                                      load_result, register_task)
 from pbicrl.synthetic import make_problem
 
 INFER = {"iterations": 3000, "chains": 2, "burn_in": 1000}
@@ -43,7 +43,8 @@ def _leftovers(root: Path) -> list[Path]:
 # ------------------------------------------------------------------------------------------------ tasks
 def test_hash_is_canonical_and_ignores_defaults_names_and_unhashed_keys(data_path):
     t = Task("selftest", {"value": 1})
-    recipe = canonical_json({"format": 1, "kind": "selftest", "version": 1, "config": {"value": 1}})
+    recipe = canonical_json({"format": 1, "cache": CACHE_VERSION, "kind": "selftest", "version": 1,
+                             "config": {"value": 1}})
     assert t.config_hash == hashlib.sha256(recipe.encode()).hexdigest()
     assert t.dir_name == f"selftest-{t.config_hash[:12]}"
     assert Task("selftest", {"value": 1}, name="x").config_hash == t.config_hash

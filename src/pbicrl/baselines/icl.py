@@ -29,6 +29,8 @@ Budgets: :func:`icl_preset` (``"smoke"``: well under a minute on the point mass;
 HalfCheetah seed in roughly 45 minutes on a 2-core CPU; ``"paper"``: larger, for bigger machines). Runs are
 resumable: :func:`run_icl` checkpoints into its directory (every ``checkpoint_every`` environment steps and
 after every round) and continues from there when called again; SIGTERM/SIGINT checkpoint and stop.
+Checkpoints hold tensors and plain Python values only and are read with ``torch.load(weights_only=True)``: a
+``checkpoint.pt`` put into a run directory by someone else cannot run code when the run resumes.
 
 Needs torch and gymnasium (``pip install "pbicrl[rl,envs]"``).
 """
@@ -569,11 +571,66 @@ def _write_json(path: Path, obj: Any) -> None:
         raise
 
 
+def _plain_state(obj: Any) -> Any:
+    """A copy of a checkpoint with NumPy values made plain (Python numbers, tensors), so that it loads with
+    ``torch.load(weights_only=True)``, which refuses every global it does not know."""
+    if isinstance(obj, dict):
+        return {k: _plain_state(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_plain_state(v) for v in obj]
+    if isinstance(obj, tuple):
+        return tuple(_plain_state(v) for v in obj)
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return torch.as_tensor(obj)
+    return obj
+
+
+def _numpy_safe_globals() -> list[Any]:
+    """NumPy scalar reconstruction, for checkpoints written before :func:`_plain_state` held NumPy numbers. These
+    globals build dtypes and scalars from bytes; anything else a pickle might ask for stays refused."""
+    out: list[Any] = [np.dtype]
+    core = getattr(np, "_core", None) or getattr(np, "core", None)
+    scalar = getattr(getattr(core, "multiarray", None), "scalar", None)
+    if scalar is not None:
+        out.append(scalar)
+    dtypes = getattr(np, "dtypes", None)
+    if dtypes is not None:
+        for name in ("Float64DType", "Float32DType", "Int64DType", "Int32DType", "BoolDType"):
+            if hasattr(dtypes, name):
+                out.append(getattr(dtypes, name))
+    return out
+
+
+def _load_checkpoint(path: Path) -> dict[str, Any]:
+    """Read a checkpoint of :func:`run_icl` safely (``weights_only=True``); errors name the file."""
+    import pickle
+
+    ctx = getattr(torch.serialization, "safe_globals", None)
+    try:
+        if ctx is not None:
+            with ctx(_numpy_safe_globals()):
+                obj = torch.load(path, weights_only=True, map_location="cpu")
+        else:  # older torch: tensors and plain values only
+            obj = torch.load(path, weights_only=True, map_location="cpu")
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()] or [type(exc).__name__]
+        # torch's own text suggests weights_only=False, exactly what must not be done with a file of unknown origin
+        first = next((ln for ln in lines if "global" in ln.lower() and "weights_only" not in ln), lines[0])
+        raise ValueError(f"out_dir: {path} cannot be loaded safely ({type(exc).__name__}: {first[:200]}); it is not "
+                         "a checkpoint of this pbicrl version, or it is damaged. Delete it to start the run "
+                         "afresh") from None
+    if not isinstance(obj, dict) or "state" not in obj:
+        raise ValueError(f"out_dir: {path} is not an ICL checkpoint (no 'state'); delete it to start afresh")
+    return obj
+
+
 def _torch_save(obj: Any, path: Path) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
-        torch.save(obj, tmp)
+        torch.save(_plain_state(obj), tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -648,6 +705,9 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
 
     spec = icl_env(env) if isinstance(env, str) else env
     cfg = icl_preset(config, spec.name) if isinstance(config, str) else config.validate()
+    from pbicrl.envs._mujoco_compat import quiet_mujoco_warnings
+
+    quiet_mujoco_warnings()  # no MUJOCO_LOG.TXT in the working directory, no deprecation note per environment
     if len(expert) == 0:
         raise ValueError("expert: need at least one expert trajectory")
     expert = [np.asarray(t, dtype=np.float64).reshape(len(t), -1) for t in expert]
@@ -692,7 +752,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
                              "sessions": []}
     ckpt = out / _CKPT
     if ckpt.is_file():
-        st = torch.load(ckpt, weights_only=False)
+        st = _load_checkpoint(ckpt)
         if st.get("config") != cfg.to_dict() or st.get("seed") != seed:
             raise ValueError(f"out_dir: {out} holds a checkpoint of a different ICL configuration or seed; "
                              "use another directory")
@@ -826,7 +886,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
         "lambda": ppo.lam, "ppo_steps": ppo.num_steps, "history": state["history"], "config": cfg.to_dict(),
     }
     save("complete")
-    st = torch.load(ckpt, weights_only=False)["state"]
+    st = _load_checkpoint(ckpt)["state"]
     summary["runtime_s"] = float(st["wall_time_s"])
     summary["sessions"] = len(st["sessions"])
     _torch_save({"state_dict": net.state_dict(), "dim": k, "hidden": list(cfg.constraint_hidden)}, out / "constraint.pt")

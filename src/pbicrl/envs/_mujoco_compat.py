@@ -9,15 +9,71 @@ Newer mujoco bindings make the enum's ``__eq__`` return ``False`` against NumPy 
 ``gymnasium_robotics.utils.mujoco_utils`` with versions that compare plain ``int``s; the
 behaviour is otherwise identical.  It is applied only when the bug is detected and is
 idempotent, so it is a no-op on fixed versions.
+
+MuJoCo's default warning handler prints every warning and appends it to ``MUJOCO_LOG.TXT`` in the
+*working directory*; mujoco >= 3.4 also warns that the ``settotalmass`` compiler attribute of Gymnasium's
+HalfCheetah model is deprecated, once for every environment built. :func:`quiet_mujoco_warnings` installs a
+handler that drops that one known message and passes every other warning on through Python's
+:mod:`warnings` (category :class:`MujocoWarning`, so it can be filtered), so no log file appears in the
+user's directory. It leaves a handler that someone else installed alone.
 """
 
 from __future__ import annotations
 
+import sys
+import warnings
 from typing import Any
 
 import numpy as np
 
-__all__ = ["needs_joint_type_patch", "original_joint_helpers", "patch_gymnasium_robotics"]
+__all__ = ["needs_joint_type_patch", "original_joint_helpers", "patch_gymnasium_robotics", "quiet_mujoco_warnings",
+           "MujocoWarning", "KNOWN_HARMLESS"]
+
+KNOWN_HARMLESS: tuple[str, ...] = (
+    # Gymnasium's half_cheetah.xml sets it; MuJoCo still applies it, and the model is not ours to change.
+    "compiler attribute 'settotalmass' is deprecated",
+)
+"""Substrings of MuJoCo warnings that :func:`quiet_mujoco_warnings` drops."""
+
+
+class MujocoWarning(RuntimeWarning):
+    """A warning from the MuJoCo engine, passed on by :func:`quiet_mujoco_warnings`."""
+
+
+def _mujoco_warning(message: str) -> None:
+    text = str(message).strip()
+    if any(known in text for known in KNOWN_HARMLESS):
+        return
+    try:
+        warnings.warn(f"MuJoCo: {text}", MujocoWarning, stacklevel=2)
+    except Exception:  # called from C: a warnings filter set to "error" must not raise through MuJoCo
+        print(f"MuJoCo warning: {text}", file=sys.stderr)
+
+
+def quiet_mujoco_warnings() -> bool:
+    """Route MuJoCo's warnings through Python (no ``MUJOCO_LOG.TXT``) and drop :data:`KNOWN_HARMLESS` ones.
+
+    Idempotent; a no-op without mujoco, or when another warning handler is installed already.
+
+    Returns
+    -------
+    bool
+        True if pbicrl's handler is installed after the call.
+    """
+    try:
+        import mujoco
+    except ImportError:
+        return False
+    try:
+        current = mujoco.get_mju_user_warning()
+        if current is _mujoco_warning:
+            return True
+        if current is not None:
+            return False  # the user's (or another library's) handler: theirs to decide
+        mujoco.set_mju_user_warning(_mujoco_warning)
+    except (AttributeError, TypeError):  # a binding without warning callbacks
+        return False
+    return True
 
 _PATCHED_FLAG = "_pbicrl_joint_type_patch"
 _HELPERS = ("set_joint_qpos", "set_joint_qvel", "get_joint_qpos", "get_joint_qvel")
@@ -96,6 +152,7 @@ def patch_gymnasium_robotics(force: bool = False) -> bool:
     """
     from gymnasium_robotics.utils import mujoco_utils
 
+    quiet_mujoco_warnings()  # building environments comes next
     if getattr(mujoco_utils, _PATCHED_FLAG, False):
         return True
     if not (force or needs_joint_type_patch()):

@@ -3,7 +3,9 @@
 Subcommands (mountable into another CLI with :func:`add_subcommands`, e.g. as ``pbicrl envs``):
 
 ``train``   train or resume a SAC demonstrator (good = true reward, violating = nominal reward)
-``demos``   roll both demonstrators out into a ranked ``.npz`` dataset (+ JSON report, optional Minari)
+``demos``   roll both demonstrators out into a ranked ``.npz`` dataset (+ JSON report, optional Minari);
+            ``--paper-protocol``: the paper's design (one start distribution, a policy mix, groups
+            from the worst region entered), how the shipped data are made
 ``plot``    PNG of a dataset's trajectories coloured by group
 ``grid``    write the 3x3-grid example dataset (paper Fig. 1)
 ``minari-to-npz``  convert a local Minari dataset written by ``demos --minari-id`` to ``.npz``
@@ -15,10 +17,14 @@ exact budgets)::
     python -m pbicrl.envs train --env point_mass --reward nominal --steps 40000 --ship src/pbicrl/data/policies
     python -m pbicrl.envs train --env point_mass --reward true --steps 30000 --ship src/pbicrl/data/policies \
         --relabel-from runs/envs/point_mass_nominal
-    python -m pbicrl.envs demos --env point_mass --out src/pbicrl/data/point_mass.npz
+    python -m pbicrl.envs demos --env point_mass --paper-protocol --out src/pbicrl/data/point_mass.npz
     python -m pbicrl.envs plot --env point_mass --dataset src/pbicrl/data/point_mass.npz \
         --out docs/figures/point_mass_demos.png
     (the same for --env fetch_reach with --steps 12000 / 40000)
+
+``demos --paper-protocol`` takes its defaults (mix probability ``--p-good``, stochastic actions,
+start distribution ``--start``, seed) from :data:`pbicrl.demonstrators.navigation.PAPER_PROTOCOL`
+and writes the full command into the JSON report.
 """
 
 from __future__ import annotations
@@ -37,6 +43,18 @@ __all__ = ["DATA_DIR", "add_subcommands", "build_parser", "main", "shipped_polic
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 _ROLE = {"true": "good", "nominal": "violating"}
+# start distributions a --paper-protocol run may use (PointMassEnv / FetchReachConstrainedEnv ``start``)
+_STARTS = {"point_mass": ("random", "left", "bottom"), "fetch_reach": ("wide", "equidistant")}
+
+
+def _probability(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= x <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return x
 
 
 def shipped_policy(env: str, role: str) -> Path:
@@ -88,18 +106,58 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_demos(args: argparse.Namespace) -> int:
-    from pbicrl.demonstrators.navigation import generate_navigation_demos
+def _paper_protocol_command(args: argparse.Namespace, p_good: float, deterministic: bool, start: str,
+                            seed: int, max_episodes: int) -> str:
+    """The canonical command line that regenerates a ``--paper-protocol`` dataset."""
+    parts = ["python -m pbicrl.envs demos", f"--env {args.env}", "--paper-protocol", f"--p-good {p_good:g}",
+             "--deterministic" if deterministic else "--stochastic", f"--start {start}", f"-n {args.n}",
+             f"--seed {seed}", f"--max-episodes {max_episodes}"]
+    for flag, value in (("--good-policy", args.good_policy), ("--violating-policy", args.violating_policy)):
+        if value is not None:
+            parts.append(f"{flag} {value}")
+    parts.append(f"--out {args.out}")
+    return " ".join(parts)
 
+
+def _cmd_demos(args: argparse.Namespace) -> int:
+    from pbicrl.demonstrators.navigation import PAPER_PROTOCOL, generate_navigation_demos, generate_paper_protocol_demos
+
+    if args.paper_protocol and args.g1_from_violating:
+        print("error: --g1-from-violating: not with --paper-protocol (which labels every rollout by the regions "
+              "it entered)", file=sys.stderr)
+        return 2
+    if not args.paper_protocol:
+        only = (("--p-good", args.p_good), ("--start", args.start), ("--deterministic", args.deterministic or None))
+        for flag, value in only:
+            if value is not None:
+                print(f"error: {flag}: only with --paper-protocol", file=sys.stderr)
+                return 2
+    if args.start is not None and args.start not in _STARTS[args.env]:
+        print(f"error: --start: expected one of {', '.join(_STARTS[args.env])} for {args.env}, got {args.start!r}",
+              file=sys.stderr)
+        return 2
     good = None if args.g1_from_violating else (args.good_policy or shipped_policy(args.env, "good"))
     bad = args.violating_policy or shipped_policy(args.env, "violating")
     for name, p in (("--good-policy", good), ("--violating-policy", bad)):
         if p is not None and not Path(p).is_file():
             print(f"error: {name}: no such file {p} (train it with `python -m pbicrl.envs train`)", file=sys.stderr)
             return 2
-    res = generate_navigation_demos(args.env, good, bad, args.out, n_per_group=args.n, seed=args.seed,
-                                    max_episodes=args.max_episodes, deterministic=not args.stochastic,
-                                    return_episodes=args.minari_id is not None)
+    if args.paper_protocol:
+        defaults = PAPER_PROTOCOL[args.env]
+        p_good = defaults["p_good"] if args.p_good is None else args.p_good
+        deterministic = defaults["deterministic"] if not (args.stochastic or args.deterministic) else args.deterministic
+        start = args.start or defaults["env_kwargs"]["start"]
+        seed = args.seed if args.seed is not None else defaults["seed"]
+        max_episodes = args.max_episodes or 50_000
+        command = _paper_protocol_command(args, p_good, deterministic, start, seed, max_episodes)
+        res = generate_paper_protocol_demos(args.env, good, bad, args.out, p_good=p_good, n_per_group=args.n,
+                                            seed=seed, deterministic=deterministic, max_episodes=max_episodes,
+                                            env_kwargs={"start": start}, command=command,
+                                            return_episodes=args.minari_id is not None)
+    else:
+        res = generate_navigation_demos(args.env, good, bad, args.out, n_per_group=args.n, seed=args.seed or 0,
+                                        max_episodes=args.max_episodes or 20_000, deterministic=not args.stochastic,
+                                        return_episodes=args.minari_id is not None)
     report = res[1]
     if args.minari_id is not None:
         from pbicrl.envs.minari_io import episodes_to_minari
@@ -109,7 +167,7 @@ def _cmd_demos(args: argparse.Namespace) -> int:
         import gymnasium as gym
 
         env_id = "pbicrl/PointMass-v0" if args.env == "point_mass" else "pbicrl/FetchReachConstrained-v0"
-        env = gym.make(env_id, reward_weights="true")
+        env = gym.make(env_id, reward_weights="true", **report.get("env_kwargs", {}))
         report["minari"] = str(episodes_to_minari(res[2], args.minari_id, env=env, root=args.minari_root,
                                                   overwrite=args.overwrite))
         env.close()
@@ -182,12 +240,29 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--env", required=True, choices=envs)
     p.add_argument("--good-policy", type=Path, default=None, help="default: the shipped policy")
     p.add_argument("--violating-policy", type=Path, default=None, help="default: the shipped policy")
+    p.add_argument("--paper-protocol", action="store_true",
+                   help="the paper's design (how the shipped data are made): every rollout from one start "
+                        "distribution, made by the good policy with probability --p-good else by the violating "
+                        "one, grouped by the worst region it entered; all rollouts kept except those that miss "
+                        "the goal; runs until every group holds at least -n")
+    p.add_argument("--p-good", type=_probability, default=None,
+                   help="--paper-protocol: probability that a rollout uses the good policy (default: the shipped "
+                        "data's, PAPER_PROTOCOL)")
+    p.add_argument("--start", default=None,
+                   help="--paper-protocol: start distribution; point_mass: random (default) | left | bottom; "
+                        "fetch_reach: equidistant (default) | wide")
     p.add_argument("--g1-from-violating", action="store_true",
                    help="take G1 from the violating policy's rollouts that enter no region (no good policy)")
-    p.add_argument("-n", type=_positive_int, default=300, help="trajectories per group")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-episodes", type=_positive_int, default=20_000, help="rollout cap per policy")
-    p.add_argument("--stochastic", action="store_true", help="sample actions instead of the policy mean")
+    p.add_argument("-n", type=_positive_int, default=300,
+                   help="trajectories per group (--paper-protocol: at least this many per group)")
+    p.add_argument("--seed", type=int, default=None, help="default 0")
+    p.add_argument("--max-episodes", type=_positive_int, default=None,
+                   help="rollout cap per policy (default 20,000); --paper-protocol: total rollouts (default 50,000)")
+    actions = p.add_mutually_exclusive_group()
+    actions.add_argument("--stochastic", action="store_true",
+                         help="sample actions instead of the policy mean (default with --paper-protocol)")
+    actions.add_argument("--deterministic", action="store_true",
+                         help="--paper-protocol: use the policy mean (the default without --paper-protocol)")
     p.add_argument("--out", required=True, type=Path, help="output .npz (a .json report is written beside it)")
     p.add_argument("--minari-id", default=None, help="also write a local Minari dataset with this id")
     p.add_argument("--minari-root", type=Path, default=None, help="Minari datasets directory")

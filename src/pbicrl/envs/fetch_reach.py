@@ -10,9 +10,21 @@ between them.  Features as in :mod:`pbicrl.envs.regions`; true weights
 ``[0.1, -20, -100, -5]``, nominal ``[0.1, 0, 0, -5]``.
 
 Start states (a choice of this package; the paper does not state them): the gripper is
-driven to a point drawn uniformly from ``x in [1.15, 1.30], y in [0.50, 1.30],
-z in [0.70, 0.90]`` (in front of both boxes, at their height), so that a direct reach
-crosses orange from low ``y``, red from high ``y`` and neither from the middle.
+driven to a point drawn uniformly from a start box (:data:`START_BOXES`):
+
+* ``"wide"`` (default; the box the shipped policies were trained on):
+  ``x in [1.15, 1.30], y in [0.50, 1.30], z in [0.70, 0.90]`` (in front of both boxes, at
+  their height), so that a direct reach crosses orange from low ``y``, red from high ``y``
+  and neither from the middle.
+* ``"equidistant"`` (the shipped demonstrations): the sub-box
+  ``x in [1.25, 1.30], y in [0.60, 1.20], z in [0.70, 0.90]``.  Every start is then
+  ``0.30-0.35`` m from the goal centre along ``x`` and at most ``0.30`` m along ``y`` and
+  ``z``, so its Chebyshev distance to the goal (which sets the fewest steps, each axis
+  moving at most ``0.05`` m) is ``0.30-0.35`` m wherever it lies in ``y``: whether a reach
+  crosses a region no longer decides how far it has to go.  The point mass's edge starts
+  have the same property (Chebyshev distance 19-20).  In the wide box, starts in the
+  middle band of ``y`` (whose direct reaches avoid both regions) are nearer the goal than
+  the oblique ones, so region-free trajectories are shorter.
 
 Compatibility: gymnasium-robotics <= 1.4.2 fails inside ``gym.make("FetchReach-v4")`` with a
 bare ``AssertionError`` under mujoco >= 3.12; :mod:`pbicrl.envs._mujoco_compat` patches
@@ -37,6 +49,7 @@ except ImportError as exc:  # pragma: no cover
 __all__ = [
     "FETCH_REACH_TASK",
     "MAX_STEPS",
+    "START_BOXES",
     "START_HIGH",
     "START_LOW",
     "FetchReachConstrainedEnv",
@@ -46,6 +59,11 @@ __all__ = [
 MAX_STEPS = 50
 START_LOW = (1.15, 0.50, 0.70)
 START_HIGH = (1.30, 1.30, 0.90)
+#: Named start boxes ``(low, high)``; see the module docstring.
+START_BOXES: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "wide": (START_LOW, START_HIGH),
+    "equidistant": ((1.25, 0.60, 0.70), (1.30, 1.20, 0.90)),
+}
 # Mocap settling at reset: sim steps (each ``n_substeps`` MuJoCo steps) and tolerance (m).
 _SETTLE_STEPS = 8
 _SETTLE_ROUNDS = 4
@@ -91,6 +109,8 @@ class FetchReachConstrainedEnv(gym.Env):
         Steps before truncation (default 50, as FetchReach).
     render_mode : str, optional
         Passed to the underlying FetchReach (``"rgb_array"`` or ``"human"``).
+    start : {"wide", "equidistant"}
+        Start box (:data:`START_BOXES`); starts are uniform in it.
 
     Notes
     -----
@@ -101,11 +121,15 @@ class FetchReachConstrainedEnv(gym.Env):
     metadata = {"render_modes": ["human", "rgb_array"]}
 
     def __init__(self, reward_weights: str | ArrayLike = "true", max_steps: int = MAX_STEPS,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, start: str = "wide") -> None:
         self.task = FETCH_REACH_TASK
         self.w = self.task.weights(reward_weights)
         if int(max_steps) < 1:
             raise ValueError(f"max_steps: must be >= 1, got {max_steps}")
+        if start not in START_BOXES:
+            raise ValueError(f"start: expected one of {sorted(START_BOXES)}, got {start!r}")
+        self.start = start
+        self.start_low, self.start_high = (np.asarray(b, dtype=np.float64) for b in START_BOXES[start])
         self.max_steps = int(max_steps)
         self.render_mode = render_mode
         self._base = make_fetch_reach_base(render_mode)
@@ -123,7 +147,7 @@ class FetchReachConstrainedEnv(gym.Env):
 
     def sample_start(self, rng: np.random.Generator) -> NDArray[np.float64]:
         """Draw a start position uniformly from the start box."""
-        return rng.uniform(START_LOW, START_HIGH)
+        return rng.uniform(self.start_low, self.start_high)
 
     def _move_gripper_to(self, target: NDArray[np.float64]) -> None:
         import mujoco

@@ -1,6 +1,7 @@
 """Write and read ranked navigation demonstrations as Minari datasets (offline).
 
-Minari (``pip install "minari[hdf5]"``) stores episodes with observations ``s_0..s_T``,
+Minari (``pip install "pbicrl[minari]"``, i.e. ``"minari[hdf5,create]"``) stores episodes with
+observations ``s_0..s_T``,
 actions, rewards, terminations and truncations.  pbicrl adds two per-step ``infos``
 entries: ``"features"`` (T+1, d) and ``"group"`` (T+1,) -- the episode's group label
 repeated, since Minari has no per-episode fields.  :func:`minari_to_dataset` converts a
@@ -23,15 +24,40 @@ import numpy as np
 
 from pbicrl.data import Dataset
 
-__all__ = ["episodes_to_minari", "load_minari", "minari_to_dataset", "require_minari"]
+__all__ = ["episodes_to_minari", "load_minari", "minari_to_dataset", "require_minari", "require_minari_create",
+           "MINARI_HINT", "MINARI_CREATE_HINT"]
+
+MINARI_HINT = 'pip install "minari[hdf5]"'
+"""Reading and writing Minari datasets (HDF5 storage)."""
+MINARI_CREATE_HINT = 'pip install "minari[create]"'
+"""Recording datasets with ``minari.DataCollector`` (it needs JAX)."""
 
 
 def require_minari() -> Any:
-    """Import minari or raise an ImportError naming the pip command."""
+    """Import minari (with its HDF5 storage) or raise an ImportError naming the pip command.
+
+    Cheap and side-effect free: call it before running any user code that only makes sense with minari.
+    """
     try:
         import minari
     except ImportError as exc:
-        raise ImportError(f'Minari export needs minari ({exc}): pip install "minari[hdf5]"') from exc
+        raise ImportError(f"Minari datasets need minari ({exc}): {MINARI_HINT} (or pip install \"pbicrl[minari]\"; "
+                          f"recording new datasets with minari.DataCollector also needs {MINARI_CREATE_HINT})") from exc
+    try:
+        import h5py  # noqa: F401  (minari's default storage; without it every read fails deep inside minari)
+    except ImportError as exc:
+        raise ImportError(f"Minari datasets are stored in HDF5, which needs h5py ({exc}): {MINARI_HINT}") from exc
+    return minari
+
+
+def require_minari_create() -> Any:
+    """:func:`require_minari`, plus what ``minari.DataCollector`` needs to record episodes (``minari[create]``)."""
+    minari = require_minari()
+    try:
+        import jax.tree_util  # noqa: F401  (DataCollector's episode buffers use it)
+    except ImportError as exc:
+        raise ImportError(f"recording Minari datasets (minari.DataCollector) needs JAX ({exc}): {MINARI_CREATE_HINT}"
+                          ) from exc
     return minari
 
 
@@ -123,10 +149,48 @@ def _create(minari: Any, dataset_id: str, buffers: list, env: Any, spec: Any, de
 
 
 def load_minari(dataset_id: str, root: str | os.PathLike | None = None) -> Any:
-    """Load a local Minari dataset (never downloads)."""
+    """Load a local Minari dataset (never downloads).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``root`` is not a directory, or there is no dataset ``dataset_id`` in it; the message lists the local
+        datasets (Minari's own would suggest ``download=True``, which pbicrl never does).
+    ValueError
+        A malformed id or an unreadable dataset.
+    """
     minari = require_minari()
+    if root is not None and not Path(root).is_dir():
+        # Minari would create the directory; a typo must not leave an empty tree behind
+        raise FileNotFoundError(f"root: {root}: no such directory (the directory holding Minari datasets)")
+    if not isinstance(dataset_id, str) or not dataset_id.strip():
+        raise ValueError(f"dataset_id: expected a Minari dataset id such as 'namespace/name-v0', got {dataset_id!r}")
     with _datasets_root(root):
-        return minari.load_dataset(dataset_id, download=False)
+        from minari.storage import get_dataset_path
+
+        where = Path(get_dataset_path(""))
+        path = Path(get_dataset_path(dataset_id))
+        if not (path / "data").is_dir():
+            local = _local_ids(minari)
+            listed = (", ".join(local[:10]) + (", ..." if len(local) > 10 else "")) if local else "none"
+            raise FileNotFoundError(
+                f"dataset_id: no Minari dataset {dataset_id!r} in {where} (local datasets: {listed}); pbicrl reads "
+                "local datasets only: pass --root DIR (root=) or set MINARI_DATASETS_PATH, or download it "
+                "first with Minari itself (minari download ID)")
+        try:
+            return minari.load_dataset(dataset_id, download=False)
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"dataset_id: {dataset_id!r} in {where} is incomplete ({exc})") from None
+        except (ValueError, KeyError, OSError) as exc:
+            raise ValueError(f"dataset_id: {dataset_id!r} in {where} cannot be read "
+                             f"({type(exc).__name__}: {exc})") from None
+
+
+def _local_ids(minari: Any) -> list[str]:
+    try:
+        return sorted(minari.list_local_datasets())
+    except Exception:  # a damaged dataset elsewhere in the directory must not hide the real message
+        return []
 
 
 def minari_to_dataset(dataset: Any, root: str | os.PathLike | None = None, *,

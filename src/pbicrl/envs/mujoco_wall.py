@@ -217,6 +217,9 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
         raise ValueError(f"max_episode_steps: must be >= 1, got {max_episode_steps}")
     kwargs = {**spec.make_kwargs, **overrides}
     # the base env gets a longer limit; our TimeLimit below decides the episode length
+    from pbicrl.envs._mujoco_compat import quiet_mujoco_warnings
+
+    quiet_mujoco_warnings()  # no MUJOCO_LOG.TXT in the working directory, no settotalmass notice per env
     base = gym.make(spec.env_id, render_mode=render_mode, max_episode_steps=10**9, **kwargs)
     env = WallPenaltyWrapper(base, spec.wall_x, spec.penalty, constrained=constrained,
                              alive_bonus=spec.alive_bonus)

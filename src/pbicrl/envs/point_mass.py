@@ -4,7 +4,9 @@ Dynamics: the state is the position ``s in [-1, 20]^2``; an action ``a in [-1, 1
 is added to it and the result is clamped to the box.  The episode ends (``terminated``)
 when ``||s - (20, 20)|| <= 3`` and is cut (``truncated``) after 60 steps.  Starts are drawn
 uniformly on the left edge (``x in [0, 1], y in [9, 19]``) or the bottom edge
-(``x in [9, 19], y in [0, 1]``), each with probability 1/2.
+(``x in [9, 19], y in [0, 1]``), each with probability 1/2.  Every start is 19-20 from the
+goal centre in Chebyshev distance (the fewest steps, as each axis moves at most 1 per step),
+whichever part of an edge it is on.
 
 The reward of a transition is ``w . phi(s')`` with the features of
 :mod:`pbicrl.envs.regions` evaluated at the next state; ``w`` is the true weight vector

@@ -8,6 +8,10 @@ runs its task's MCMC chains in-process, each from its own child of the task's ``
 * :class:`LocalExecutor` - a ``concurrent.futures`` process pool, one task per core.
 * :class:`RayExecutor` - Ray's task API (``ray.remote``), on a local Ray instance or the cluster named by
   ``address`` / ``RAY_ADDRESS``; the optional extra ``pip install "pbicrl[ray]"``.
+
+Local pool workers die with the process that started them (:func:`pbicrl.samplers.driver.die_with_parent`):
+a sweep killed with SIGTERM or SIGKILL leaves no task running, and none blocked forever on a pipe to a
+parent that is gone; their temporary directories are removed by the next run.
 """
 
 from __future__ import annotations
@@ -73,9 +77,17 @@ class SerialExecutor(Executor):
             yield task, execute_task(task, root, force=force)
 
 
-def _init_pool_worker() -> None:
+def _init_pool_worker(parent: int | None = None) -> None:
+    from pbicrl.samplers.driver import die_with_parent
+
+    # A worker whose parent is gone would finish its task, then wait forever for the next one on a pipe
+    # that its siblings keep open: end it with the parent instead (the next run cleans its temporaries).
+    die_with_parent(parent)
     # Ctrl-C goes to the whole process group; the parent decides what happens to running tasks.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # The parent's SIGTERM handler (a sweep turns SIGTERM into an interrupt) is inherited through fork:
+    # a worker must die on the parent's terminate(), as any process does by default.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 class LocalExecutor(Executor):
@@ -135,7 +147,8 @@ class LocalExecutor(Executor):
         """Run ``tasks`` on one pool, yielding outcomes; returns the tasks a broken pool cut short
         (started, queued) and whether any task finished."""
         ctx = mp.get_context(self.start_method)
-        pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=_init_pool_worker)
+        pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=_init_pool_worker,
+                                   initargs=(os.getpid(),))
         cut: list[Task] = []
         progressed = False
         try:
@@ -171,14 +184,11 @@ class LocalExecutor(Executor):
 
 
 def _terminate(pool: ProcessPoolExecutor) -> None:
-    """Stop a pool now, running tasks included (their temporary directories are cleaned up afterwards)."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API before Python 3.14
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in processes:
-        if p.is_alive():
-            p.terminate()
-    for p in processes:
-        p.join(timeout=5)
+    """Stop a pool now, running tasks included (their temporary directories are cleaned up afterwards):
+    SIGTERM, then SIGKILL for a task that handles SIGTERM and does not stop within two seconds."""
+    from pbicrl.samplers.driver import stop_pool
+
+    stop_pool(pool, grace=2.0)
 
 
 def _ray_execute(task: Task, force: bool) -> dict[str, Any]:

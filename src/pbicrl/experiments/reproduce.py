@@ -42,7 +42,7 @@ PAPER: dict[str, Any] = {
 def run_unit(config: dict, out_dir: Path) -> dict[str, Any]:
     """One chain on one dataset subsample (a task: config in, ``summary.json`` out)."""
     from pbicrl.api import infer
-    from pbicrl.cli import _resolve_data
+    from pbicrl.data import resolve_dataset_path as _resolve_data
     from pbicrl.data import load_dataset
     from pbicrl.priors import WeightPrior
 
@@ -50,10 +50,18 @@ def run_unit(config: dict, out_dir: Path) -> dict[str, Any]:
     if config.get("n_per_group"):
         ds = ds.sample_per_group(int(config["n_per_group"]), seed=int(config.get("sample_seed", 0)))
     prior = config.get("prior", "flat")
-    wp = WeightPrior("improper") if prior == "improper" else WeightPrior(prior, *config.get("prior_bounds", (-1000.0, 1000.0)))
-    pairs = config.get("pairs", "all")
+    # The paper's rows: its flat prior (improper for Algorithms 1 and 3) over both signs, its Eq. 7 likelihood.
+    # Rows with "likelihood": "grouped" and "prior": "default" are pbicrl's default model.
+    if prior == "default":
+        wp = WeightPrior()
+    elif prior == "improper":
+        wp = WeightPrior("improper", sign="any")
+    else:
+        wp = WeightPrior(prior, *config.get("prior_bounds", (-1000.0, 1000.0)), sign="any")
+    likelihood = config.get("likelihood", "pairwise")
+    pairs = config.get("pairs", "all") if likelihood == "pairwise" else None
     t0 = time.perf_counter()
-    post = infer(ds, method=config["method"], margins=config.get("margins"), pairs=pairs,
+    post = infer(ds, method=config["method"], margins=config.get("margins"), pairs=pairs, likelihood=likelihood,
                  pairs_seed=int(config.get("sample_seed", 0)), n_iterations=int(config["iterations"]),
                  n_chains=int(config.get("chains", 1)), n_jobs=1, seed=int(config["seed"]),
                  sigma=float(config.get("sigma", 0.1)), f_s=int(config.get("f_s", 4)),
@@ -66,7 +74,13 @@ def run_unit(config: dict, out_dir: Path) -> dict[str, Any]:
 
     nominal = ds.nominal_weights if ds.nominal_weights is not None else np.zeros(ds.n_features)
     w, cols = _weights_of(post, ds, nominal, "map")
-    return {"map_effective_penalty": post.map_effective_penalty.tolist(),
+    w_sel, cols_sel = _weights_of(post, ds, nominal, "selected")
+    sel_eff, sel_theta = post.point_estimate("selected")
+    return {"selected_effective_penalty": [float(x) for x in np.nan_to_num(sel_eff)],
+            "selected_indicators": (post.p_constraint > 0.5).astype(int).tolist(),
+            "selected_parameters": [None if not np.isfinite(x) else float(x) for x in np.atleast_1d(sel_theta)],
+            "group_means_selected": group_mean_returns(ds, w_sel, cols_sel).tolist(),
+            "map_effective_penalty": post.map_effective_penalty.tolist(),
             "map_indicators": post.map_indicators.astype(int).tolist(),
             "map_parameters": [None if not np.isfinite(x) else float(x) for x in post.map_parameters_active],
             "mean_effective_penalty": post.mean_effective_penalty.tolist(),
@@ -108,7 +122,7 @@ class Context:
 
 def _prepare_unit(config: dict) -> dict:
     """Hash the dataset's content, not its path: moving the checkout does not invalidate finished runs."""
-    from pbicrl.cli import _resolve_data
+    from pbicrl.data import resolve_dataset_path as _resolve_data
     from pbicrl.experiments.tasks import _file_sha256
 
     config = dict(config)

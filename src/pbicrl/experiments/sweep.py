@@ -22,9 +22,11 @@ A sweep file (TOML)::
     margins = [[0.0, 6.0]]
 
 Each run is a :class:`~pbicrl.experiments.tasks.Task`; its results go to ``<out>/<name>-<hash12>/``. Runs whose
-results already exist (same config hash) are skipped, so a killed sweep restarted with the same command
-loses at most the runs that were in flight. ``<out>/sweep.json`` lists every run with its settings, status,
-headline numbers and error.
+results already exist (same config hash, same :data:`~pbicrl.experiments.tasks.CACHE_VERSION`, same settings
+including defaults) are skipped, so a killed sweep restarted with the same command loses at most the runs that
+were in flight; a run cached under other defaults is run again, with a note saying why. ``<out>/sweep.json``
+lists every run with its settings, status, headline numbers and error. SIGTERM stops a sweep like Ctrl-C:
+running tasks are stopped, finished runs kept, ``sweep.json`` written.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import itertools
 import json
 import math
 import os
+import signal
 import sys
 import time
 import tomllib
@@ -48,9 +51,11 @@ from pbicrl.experiments.tasks import (
     Task,
     TaskError,
     canonical_json,
+    _read_result,
     clean_stale_temp_dirs,
     find_done,
     get_task_kind,
+    stale_reason,
 )
 
 __all__ = ["RunRecord", "SweepResult", "SweepSpec", "add_subcommands", "expand_grid", "load_sweep", "run_tasks"]
@@ -267,6 +272,8 @@ def run_tasks(
                     on_outcome(r)
         else:
             todo.append(group[0].task)
+            if not force:
+                _note_stale(group[0].task, root, progress)
 
     bar = _bar(len(by_hash), len(by_hash) - len(todo), progress)
     t0 = time.perf_counter()
@@ -309,6 +316,17 @@ def run_tasks(
         if manifest_path is not None:
             result.save(manifest_path)
     return result
+
+
+def _note_stale(task: Task, root: Path, progress: bool) -> None:
+    """Say why a finished run of the same hash is not reused (made under other defaults or cache version)."""
+    d = task.out_dir(root)
+    if not d.is_dir():
+        return
+    rec = _read_result(d)
+    reason = stale_reason(task, rec) if rec is not None else None
+    if reason is not None and progress:
+        print(f"note: {d.name}: cached result not reused ({reason}); running it again", file=sys.stderr)
 
 
 def _auto_settings(tasks: Sequence[Task]) -> list[dict[str, Any]]:
@@ -481,6 +499,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     executor = make_executor(args.executor, args.workers, address=args.address)
     print(f"sweep {args.config}: {len(spec.tasks)} runs -> {spec.out} on {executor.describe()}", file=sys.stderr)
+    # SIGTERM (a scheduler's or `kill`'s) stops the sweep as Ctrl-C does: workers stopped, sweep.json written.
+    previous = _on_sigterm(_raise_interrupt)
     try:
         result = run_tasks(spec.tasks, spec.out, executor, settings=spec.settings, force=args.force,
                            progress=not args.no_progress)
@@ -488,6 +508,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         print(f"pbicrl: interrupted; finished runs are kept in {spec.out}; run the same command to resume",
               file=sys.stderr)
         return 130
+    finally:
+        _on_sigterm(previous)
     print(result.table())
     c = result.counts()
     print(f"{c['total']} runs: {c['ran']} ran, {c['cached']} already finished, {c['failed']} failed; "
@@ -503,3 +525,17 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
               "missing runs run again)", file=sys.stderr)
         return 1
     return 0
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def _on_sigterm(handler: Any) -> Any:
+    """Install ``handler`` for SIGTERM (main thread only); returns the previous one (None if unchanged)."""
+    if handler is None:
+        return None
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except (ValueError, OSError):  # not the main thread: leave the default
+        return None

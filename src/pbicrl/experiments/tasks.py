@@ -2,10 +2,16 @@
 
 A :class:`Task` is a task *kind* (a registered name such as ``"infer"``, or an importable
 ``"package.module:function"``) plus a JSON-serialisable config. Its :attr:`Task.config_hash` (SHA-256 of the
-canonical JSON of the format version, the kind and its version, and the config entries that are hashed: not
-the ``unhashed`` keys, not those equal to their default) identifies the run: the
-results live in ``<root>/<name>-<hash[:12]>/`` with a ``result.json`` that records the full hash, so a sweep
-restarted with the same settings recognises finished runs and skips them.
+canonical JSON of the format version, :data:`CACHE_VERSION`, the kind and its version, and the config entries
+that are hashed: not the ``unhashed`` keys, not those equal to their default) identifies the run: the
+results live in ``<root>/<name>-<hash[:12]>/`` with a ``result.json`` that records the full hash, the cache
+version and the full config, so a sweep restarted with the same settings recognises finished runs and skips
+them.
+
+A finished run is reused only if it was made under the same defaults: its stored cache version must be
+:data:`CACHE_VERSION` (bumped by hand when a default changes the numbers of every kind), and every setting
+it recorded must equal the current task's (so a run made under an old default of a key it did not set,
+e.g. the prior, is run again rather than silently reused; settings added since keep their default).
 
 A kind's function has the signature ``run(config: dict, out_dir: Path) -> dict``: it writes whatever files it
 likes into ``out_dir`` (an empty directory that only becomes visible under its final name, together with
@@ -39,13 +45,22 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
 __all__ = [
-    "TASK_FORMAT", "RESULT_FILE", "Task", "TaskKind", "TaskError", "register_task", "get_task_kind",
+    "TASK_FORMAT", "CACHE_VERSION", "RESULT_FILE", "Task", "TaskKind", "TaskError", "register_task", "get_task_kind",
     "task_kinds", "canonical_json", "in_task_worker", "task_jobs", "task_worker", "execute_task", "finalize_task",
-    "write_shipped", "find_done", "load_result", "clean_stale_temp_dirs", "run_infer", "prepare_infer", "run_selftest",
+    "write_shipped", "find_done", "stale_reason", "load_result", "clean_stale_temp_dirs", "run_infer",
+    "prepare_infer", "run_selftest",
 ]
 
 TASK_FORMAT = 1
 """Version of the hashed task description; bump when the meaning of a config changes for every kind."""
+
+CACHE_VERSION = 2
+"""Version of the numbers finished runs hold; part of every task hash and stored in each ``result.json``.
+
+Bump it when a change of defaults (the prior, the likelihood, a sampler setting) or of the code makes
+earlier results different from what the same config gives now: finished runs of older versions are then
+run again instead of being reused. Version 2: runs cached before defaults were recorded with each run.
+"""
 
 RESULT_FILE = "result.json"
 _TMP_PREFIX = ".tmp-"
@@ -256,9 +271,12 @@ class Task:
         defaults = _plain(spec.defaults(), "defaults") if spec.defaults is not None else {}
         hashed = {k: v for k, v in config.items()
                   if k not in unhashed and not (k in defaults and canonical_json(v) == canonical_json(defaults[k]))}
-        text = canonical_json({"format": TASK_FORMAT, "kind": self.kind, "version": spec.version, "config": hashed})
+        text = canonical_json({"format": TASK_FORMAT, "cache": CACHE_VERSION, "kind": self.kind,
+                               "version": spec.version, "config": hashed})
         object.__setattr__(self, "_hash", hashlib.sha256(text.encode()).hexdigest())
         object.__setattr__(self, "_target", spec.target)
+        object.__setattr__(self, "_compare", {k: v for k, v in config.items() if k not in unhashed})
+        object.__setattr__(self, "_defaults", {k: v for k, v in defaults.items() if k not in unhashed})
 
     @property
     def spec(self) -> TaskKind:
@@ -272,7 +290,8 @@ class Task:
 
     @property
     def config_hash(self) -> str:
-        """SHA-256 (hex) of the canonical JSON of format and kind versions, kind, and the hashed config entries."""
+        """SHA-256 (hex) of the canonical JSON of format, cache and kind versions, kind, and the hashed config
+        entries."""
         return self._hash  # type: ignore[attr-defined]
 
     @property
@@ -302,10 +321,39 @@ def _read_result(directory: Path) -> dict | None:
         return None
 
 
+def stale_reason(task: Task, record: Mapping[str, Any] | None) -> str | None:
+    """Why a ``result.json`` record cannot stand for ``task`` (None if it can).
+
+    Not the same full hash; another :data:`CACHE_VERSION`; or a setting recorded with another value than
+    the task's (typically a default that changed since: the hash leaves out values equal to the default).
+    A setting the record lacks is fine if the task has it at its default (the kind gained a setting).
+    """
+    if record is None:
+        return "no readable result.json"
+    if record.get("config_hash") != task.config_hash:
+        return "another configuration (config hash differs)"
+    version = record.get("cache_version", 1)
+    if version != CACHE_VERSION:
+        return f"made by cache version {version}, this pbicrl is at {CACHE_VERSION}"
+    stored = record.get("config")
+    if not isinstance(stored, Mapping):
+        return "result.json records no config"
+    current: dict[str, Any] = task._compare  # type: ignore[attr-defined]
+    defaults: dict[str, Any] = task._defaults  # type: ignore[attr-defined]
+    for key, value in current.items():
+        if key in stored:
+            if canonical_json(stored[key]) != canonical_json(value):
+                return f"made with {key}={canonical_json(stored[key])}, now {key}={canonical_json(value)}"
+        elif key in defaults and canonical_json(value) != canonical_json(defaults[key]):
+            return f"made before setting {key!r} existed, now {key}={canonical_json(value)}"
+    return None
+
+
 def find_done(task: Task, root: str | os.PathLike[str]) -> Path | None:
     """The finished results directory of ``task`` under ``root`` (any name ending in its hash), or None.
 
-    A run is finished iff its directory holds a ``result.json`` that records the same full config hash.
+    A run is finished iff its directory holds a ``result.json`` that records the same full config hash and
+    for which :func:`stale_reason` finds nothing (same cache version, same settings).
     """
     root = Path(root)
     first = task.out_dir(root)
@@ -313,8 +361,7 @@ def find_done(task: Task, root: str | os.PathLike[str]) -> Path | None:
     for d in candidates:
         if d.name.startswith(".") or not d.is_dir():
             continue
-        rec = _read_result(d)
-        if rec is not None and rec.get("config_hash") == task.config_hash:
+        if stale_reason(task, _read_result(d)) is None:
             return d
     return None
 
@@ -329,24 +376,16 @@ def _host() -> str:
     return _safe_name(socket.gethostname()).replace(".", "_")[:40]
 
 
+def _pid_alive(pid: int) -> bool:
+    from pbicrl.data import _pid_alive as alive  # one definition of "still running" for every temporary
+
+    return alive(pid)
+
+
 def _make_temp_dir(root: Path, task: Task) -> Path:
     """A private directory ``.tmp-<hash12>.<host>.<pid>.<random>`` in ``root`` (so stale ones can be recognised)."""
     root.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix=f"{_TMP_PREFIX}{task.config_hash[:12]}.{_host()}.{os.getpid()}.", dir=root))
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:  # a killed process stays a zombie until its new parent reaps it
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        return stat[stat.rindex(")") + 2] not in "ZX"
-    except (OSError, ValueError, IndexError):
-        return True
 
 
 def clean_stale_temp_dirs(root: str | os.PathLike[str]) -> list[Path]:
@@ -377,8 +416,8 @@ def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s:
     """
     run_dir = work / "run"
     record = {
-        "format": TASK_FORMAT, "kind": task.kind, "target": task.target, "name": task.name,
-        "config_hash": task.config_hash, "config": task.config, "result": _plain(result, "result"),
+        "format": TASK_FORMAT, "cache_version": CACHE_VERSION, "kind": task.kind, "target": task.target,
+        "name": task.name, "config_hash": task.config_hash, "config": task.config, "result": _plain(result, "result"),
         "runtime_s": float(runtime_s), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "host": socket.gethostname(),
     }
@@ -391,8 +430,7 @@ def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s:
     os.chmod(run_dir, 0o777 & ~mask)  # mkdtemp makes 0700; the results should be as readable as any new directory
     final = task.out_dir(root)
     if final.exists():
-        rec = _read_result(final)
-        if rec is not None and rec.get("config_hash") == task.config_hash and not force:
+        if stale_reason(task, _read_result(final)) is None and not force:
             shutil.rmtree(work, ignore_errors=True)
             return final
         os.replace(final, work / "old")  # stale or forced: move aside first, then the new one takes its place
@@ -400,8 +438,7 @@ def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s:
         os.replace(run_dir, final)
     except OSError:
         # Another process finished the same run between the check above and the rename: keep its copy.
-        rec = _read_result(final)
-        if rec is None or rec.get("config_hash") != task.config_hash:
+        if stale_reason(task, _read_result(final)) is not None:
             raise
     shutil.rmtree(work, ignore_errors=True)
     return final
@@ -523,21 +560,16 @@ def write_shipped(task: Task, root: str | os.PathLike[str], outcome: dict[str, A
 
 
 # --------------------------------------------------------------------------------------------- kind "infer"
-_SHIPPED_SUFFIX = ".npz"
 _sha_cache: dict[tuple[str, int, int], str] = {}
 
 
 def _resolve_data(data: str) -> Path:
-    p = Path(data).expanduser()
-    if p.exists():
-        return p
-    from importlib import resources
+    from pbicrl.data import DatasetNotFoundError, resolve_dataset_path
 
-    name = p.name if p.suffix == _SHIPPED_SUFFIX else f"{p.name}{_SHIPPED_SUFFIX}"
-    shipped = resources.files("pbicrl") / "data" / name
-    if str(p.parent) in ("", ".") and shipped.is_file():
-        return Path(str(shipped))
-    raise TaskError(f"data: {data}: no such file (and no shipped dataset of that name)")
+    try:
+        return resolve_dataset_path(data)
+    except DatasetNotFoundError as exc:
+        raise TaskError(str(exc)) from None
 
 
 def _file_sha256(path: Path) -> str:
@@ -581,9 +613,11 @@ def prepare_infer(config: dict) -> dict:
     if not isinstance(config["data"], str):
         raise TaskError(f"data: expected a path or a dataset name, got {config['data']!r}")
     path = _resolve_data(config["data"])
+    if not path.is_file():
+        raise TaskError(f"data: {config['data']}: not a regular file")
     # An existing file is stored by absolute path (workers may start elsewhere); shipped datasets by name.
     data = config.pop("data")
-    out: dict[str, Any] = {"data": str(path.resolve()) if Path(data).expanduser().exists() else data,
+    out: dict[str, Any] = {"data": str(path.resolve()) if Path(data).expanduser().is_file() else data,
                            "data_sha256": _file_sha256(path)}
     config.pop("data_sha256", None)
     for key, value in config.items():

@@ -3,13 +3,17 @@
 One row per state. Columns:
 
 * a trajectory id (any value; trajectories keep the order in which their ids first appear);
-* the trajectory's group (positive integer, 1 = best; the same on every row of a trajectory);
+* the trajectory's group (the same on every row of a trajectory): a positive integer, 1 = best, or a name
+  ("good", "bad", "very bad") when the order of the names is given best first (``group_order``,
+  ``--group-order 'good,bad,very bad'``); the names are kept as the dataset's ``group_names``;
 * one column per feature (numeric);
 * optionally state columns and action columns (numeric), and a step column that orders the rows of each
   trajectory (otherwise file order is kept).
 
 Problems are reported with the column, the row (1-based data row; for CSV also the file line) and the value:
-missing columns, a trajectory with rows in more than one group, non-numeric or empty values.
+missing columns, a trajectory with rows in more than one group, non-numeric or empty values, a group name
+missing from the given order, a delimiter that is not one character, a field longer than the CSV module's
+limit (131,072 characters: usually a wrong delimiter or an unclosed quote), text that is not UTF-8.
 """
 
 from __future__ import annotations
@@ -24,9 +28,9 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbicrl.data import Dataset, DatasetError, _umask
+from pbicrl.data import Dataset, DatasetError, _file_kind, _umask, clean_stale_temporaries, temporary_prefix
 
-__all__ = ["TableError", "read_csv", "read_parquet", "read_table", "columns_to_dataset", "write_csv"]
+__all__ = ["TableError", "read_csv", "read_parquet", "read_table", "columns_to_dataset", "write_csv", "check_delimiter"]
 
 _IO_HINT = 'pip install "pbicrl[io]"'
 
@@ -53,6 +57,7 @@ def columns_to_dataset(
     action_cols: str | Sequence[str] | None = None,
     step_col: str | None = None,
     nominal_weights: ArrayLike | None = None,
+    group_order: str | Sequence[Any] | None = None,
     source: str = "table",
     lines: Sequence[int] | None = None,
 ) -> Dataset:
@@ -69,6 +74,10 @@ def columns_to_dataset(
     step_col : str, optional
         Orders the rows within each trajectory.
     nominal_weights : array-like (d,), optional
+    group_order : comma-separated str or sequence, optional
+        The group names of ``group_col`` in preference order, best first (``["good", "bad", "very bad"]``):
+        the ``k``-th name becomes group label ``k``, and the names of the groups present are stored as the
+        dataset's ``group_names``. Without it the group column must hold positive integers (1 = best).
     source : str
         File name for messages.
     lines : sequence of int, optional
@@ -135,12 +144,23 @@ def columns_to_dataset(
     empty = [r for r, v in enumerate(ids) if not v]
     if empty:
         raise TableError(f"{source}: column '{id_col}', {where(empty[0])}: empty trajectory id")
-    group = numeric(group_col)
-    bad = np.flatnonzero((group != np.round(group)) | (group < 1))
-    if bad.size:
-        r = int(bad[0])
-        raise TableError(f"{source}: column '{group_col}', {where(r)}: group labels must be positive integers "
-                         f"(1 = best), got {columns[group_col][r]!r}")
+    ranked = _split(group_order)
+    if ranked is not None:
+        group = _ranked_groups(columns[group_col], ranked, group_col, source, where)
+    else:
+        try:
+            group = numeric(group_col)
+        except TableError as exc:
+            seen = list(dict.fromkeys(("" if v is None else str(v)).strip() for v in columns[group_col]))
+            shown = ",".join(v for v in seen[:5] if v) + (",..." if len(seen) > 5 else "")
+            raise TableError(f"{exc}; group labels are positive integers (1 = best), or names whose order you give, "
+                             f"best first, with --group-order (group_order=); the names found are "
+                             f"--group-order '{shown}' in order of appearance") from None
+        bad = np.flatnonzero((group != np.round(group)) | (group < 1))
+        if bad.size:
+            r = int(bad[0])
+            raise TableError(f"{source}: column '{group_col}', {where(r)}: group labels must be positive integers "
+                             f"(1 = best), got {columns[group_col][r]!r}")
     F = np.column_stack([numeric(c) for c in feats])
     S = np.column_stack([numeric(c) for c in states]) if states else None
     A = np.column_stack([numeric(c) for c in actions]) if actions else None
@@ -168,41 +188,102 @@ def columns_to_dataset(
         traj_rows.append(rows_arr)
         traj_group.append(int(g[0]))
     if len(set(traj_group)) < 2:
+        only = traj_group[0] if ranked is None else repr(ranked[traj_group[0] - 1])
         raise TableError(f"{source}: column '{group_col}': need at least two groups to rank, all trajectories are "
-                         f"in group {traj_group[0]}")
+                         f"in group {only}")
+    names = None if ranked is None else [ranked[k - 1] for k in sorted(set(traj_group))]
     return Dataset.from_trajectories(
         [F[r] for r in traj_rows], np.asarray(traj_group),
         states=None if S is None else [S[r] for r in traj_rows],
         actions=None if A is None else [A[r] for r in traj_rows],
-        feature_names=feats, nominal_weights=nominal_weights)
+        feature_names=feats, nominal_weights=nominal_weights, group_names=names)
+
+
+def _ranked_groups(values: Sequence[Any], order: list[str], group_col: str, source: str,
+                   where: Any) -> NDArray[np.float64]:
+    """Group labels 1..K from group names and their order (best first)."""
+    if len(order) < 2:
+        raise TableError(f"{source}: --group-order: need at least two group names, best first, got {order}")
+    dup = sorted({g for g in order if order.count(g) > 1})
+    if dup:
+        raise TableError(f"{source}: --group-order: repeated group name(s) {dup}")
+    rank = {name: k + 1 for k, name in enumerate(order)}
+    out = np.empty(len(values))
+    for r, v in enumerate(values):
+        key = "" if v is None else str(v).strip()
+        if key not in rank:
+            shown = "an empty value" if not key else repr(key)
+            raise TableError(f"{source}: column '{group_col}', {where(r)}: group {shown} is not one of --group-order "
+                             f"{', '.join(repr(g) for g in order)}")
+        out[r] = rank[key]
+    return out
+
+
+def check_delimiter(delimiter: str) -> str:
+    """A CSV field separator: one character (``"tab"`` or ``"\\t"`` for a tab); anything else is an error."""
+    if not isinstance(delimiter, str):
+        raise TableError(f"--delimiter: expected one character, got {delimiter!r}")
+    named = {"tab": "\t", "\\t": "\t", "space": " ", "comma": ",", "semicolon": ";"}
+    d = named.get(delimiter.lower() if len(delimiter) > 1 else delimiter, delimiter)
+    if len(d) != 1:
+        raise TableError(f"--delimiter: expected one character (e.g. ';' or 'tab'), got {delimiter!r} "
+                         f"({len(delimiter)} characters)")
+    if d in "\r\n\"" or d.isalnum():
+        raise TableError(f"--delimiter: {delimiter!r} cannot separate fields (letters, digits, quotes and line breaks "
+                         "are not allowed)")
+    return d
+
+
+def _check_input(p: Path, what: str) -> None:
+    """A readable regular file, or an error that says what it is instead."""
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"data: {p}: no such file") from None
+    except OSError as exc:
+        raise TableError(f"{p}: cannot be read ({exc.strerror or exc})") from None
+    kind = _file_kind(st.st_mode)
+    if kind is not None:
+        raise TableError(f"{p}: is a {kind}, not a {what} file")
 
 
 def read_csv(path: str | os.PathLike[str], *, delimiter: str = ",", **kwargs: Any) -> Dataset:
     """Read a CSV file with a header row (see the module docstring; keyword arguments as
     :func:`columns_to_dataset`)."""
     p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"data: {p}: no such file")
-    with open(p, newline="", encoding="utf-8-sig") as fh:
-        reader = _csv.reader(fh, delimiter=delimiter)
-        try:
-            header = next(reader)
-        except StopIteration:
-            raise TableError(f"{p}: empty file (expected a header row)") from None
-        header = [h.strip() for h in header]
-        if len(set(header)) != len(header):
-            dup = sorted({h for h in header if header.count(h) > 1})
-            raise TableError(f"{p}: repeated column names {dup} in the header")
-        cols: dict[str, list[str]] = {h: [] for h in header}
-        lines: list[int] = []
-        for row in reader:
-            if not row or all(not x.strip() for x in row):
-                continue
-            if len(row) != len(header):
-                raise TableError(f"{p}: line {reader.line_num}: {len(row)} values, the header has {len(header)} columns")
-            lines.append(reader.line_num)
-            for h, v in zip(header, row):
-                cols[h].append(v)
+    _check_input(p, "CSV")
+    delimiter = check_delimiter(delimiter)
+    reader: Any = None
+    try:
+        with open(p, newline="", encoding="utf-8-sig") as fh:
+            reader = _csv.reader(fh, delimiter=delimiter)
+            try:
+                header = next(reader)
+            except StopIteration:
+                raise TableError(f"{p}: empty file (expected a header row)") from None
+            header = [h.strip() for h in header]
+            if len(set(header)) != len(header):
+                dup = sorted({h for h in header if header.count(h) > 1})
+                raise TableError(f"{p}: repeated column names {dup} in the header")
+            cols: dict[str, list[str]] = {h: [] for h in header}
+            lines: list[int] = []
+            for row in reader:
+                if not row or all(not x.strip() for x in row):
+                    continue
+                if len(row) != len(header):
+                    raise TableError(f"{p}: line {reader.line_num}: {len(row)} values, the header has {len(header)} columns")
+                lines.append(reader.line_num)
+                for h, v in zip(header, row):
+                    cols[h].append(v)
+    except _csv.Error as exc:
+        line = reader.line_num if reader is not None else 1  # lines read so far, the bad one included
+        if "field larger than field limit" in str(exc):
+            raise TableError(f"{p}: line {line}: a field is longer than {_csv.field_size_limit():,} characters; "
+                             f"is the delimiter right ({delimiter!r}; --delimiter) and every quote closed?") from None
+        raise TableError(f"{p}: line {line}: not valid CSV ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise TableError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r}); "
+                         "save the table as UTF-8 CSV") from None
     return columns_to_dataset(cols, source=str(p), lines=lines, **kwargs)
 
 
@@ -210,8 +291,7 @@ def read_parquet(path: str | os.PathLike[str], **kwargs: Any) -> Dataset:
     """Read a Parquet file (needs pyarrow: ``pip install "pbicrl[io]"``); keyword arguments as
     :func:`columns_to_dataset`."""
     p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"data: {p}: no such file")
+    _check_input(p, "Parquet")
     try:
         import pyarrow.parquet as pq
     except ImportError as exc:
@@ -250,7 +330,8 @@ def write_csv(dataset: Dataset, path: str | os.PathLike[str], *, id_col: str = "
     if clash or len(set(header)) != len(header):
         raise TableError(f"{p}: column names clash: {sorted(clash) or header}")
     p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    clean_stale_temporaries(p)
+    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(p), dir=p.parent)
     try:
         with os.fdopen(fd, "w", newline="") as fh:
             w = _csv.writer(fh)

@@ -1,6 +1,8 @@
 """Import trajectories from a local Minari dataset with a user-supplied feature function.
 
-Minari (``pip install "minari[hdf5]"``) stores episodes (observations, actions, rewards, infos) but no
+Minari (``pip install "minari[hdf5]"``; recording new datasets with ``minari.DataCollector`` also needs
+``pip install "minari[create]"``, both in ``pip install "pbicrl[minari]"``) stores episodes (observations,
+actions, rewards, infos) but no
 preference labels and no features, so the user supplies both:
 
 * ``feature_fn(episode) -> array (T_i, d)``: per-state features :math:`\\phi(s)` of one episode (a Minari
@@ -10,7 +12,8 @@ preference labels and no features, so the user supplies both:
 
 Datasets written by pbicrl itself (:func:`pbicrl.envs.minari_io.episodes_to_minari`) carry
 ``infos["features"]`` and ``infos["group"]``; both are used when ``feature_fn`` / ``groups`` are not given.
-Nothing is downloaded: datasets are read from ``root`` (or Minari's default directory).
+Nothing is downloaded: datasets are read from ``root`` (or Minari's default directory). Observations are kept as
+states and actions as actions, aligned with the feature rows (see :func:`from_minari`).
 """
 
 from __future__ import annotations
@@ -90,6 +93,26 @@ def _episode_states(ep: Any, T: int) -> np.ndarray | None:
                        "row per observation (or per step), or pass states=False")
 
 
+def _episode_actions(ep: Any, T: int) -> np.ndarray | None:
+    act = getattr(ep, "actions", None)
+    if act is None or isinstance(act, (dict, tuple)):
+        return None  # structured action spaces: no flat action vector
+    try:
+        a = np.asarray(act, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if a.ndim == 0 or a.shape[0] == 0:
+        return None
+    a = a.reshape(a.shape[0], -1)
+    if a.shape[0] == T:
+        return a
+    if a.shape[0] == T - 1:
+        # one feature row per observation: the final observation follows the last action, so it has none
+        return np.concatenate([a, np.zeros((1, a.shape[1]))], axis=0)
+    raise DatasetError(f"feature_fn: episode {ep.id}: {T} feature rows but {a.shape[0]} actions; return one row per "
+                       "step or per observation, or pass actions=False")
+
+
 def from_minari(
     dataset: Any,
     feature_fn: FeatureFn | None = None,
@@ -99,6 +122,7 @@ def from_minari(
     feature_names: Sequence[str] | None = None,
     nominal_weights: ArrayLike | None = None,
     states: bool = True,
+    actions: bool = True,
     episode_indices: Sequence[int] | None = None,
 ) -> Dataset:
     """Convert a Minari dataset into a :class:`Dataset`.
@@ -117,6 +141,10 @@ def from_minari(
         Stored in the dataset.
     states : bool
         Keep the (flat) observations as states, aligned with the feature rows.
+    actions : bool
+        Keep the (flat) actions, aligned with the feature rows: with one feature row per step they match
+        one to one; with one per observation (T+1 rows) the final observation, which no action follows,
+        gets a row of zeros.
     episode_indices : sequence of int, optional
         Only these episodes (Minari indices).
 
@@ -135,7 +163,7 @@ def from_minari(
     if feature_fn is not None and not callable(feature_fn):
         raise TypeError(f"feature_fn: expected a callable episode -> (T, d) array, got {type(feature_fn).__name__}")
     episodes = dataset.iterate_episodes(episode_indices) if episode_indices is not None else dataset.iterate_episodes()
-    feats, labels, st = [], [], []
+    feats, labels, st, acts = [], [], [], []
     for k, ep in enumerate(episodes):
         f = _episode_features(ep, feature_fn)
         if feats and f.shape[1] != feats[0].shape[1]:
@@ -145,37 +173,73 @@ def from_minari(
         labels.append(_episode_group(ep, k, groups))
         if states:
             st.append(_episode_states(ep, f.shape[0]))
+        if actions:
+            acts.append(_episode_actions(ep, f.shape[0]))
     if not feats:
         raise DatasetError("dataset: no episodes")
     keep_states = states and all(s is not None for s in st)
+    keep_actions = actions and all(a is not None for a in acts) and len({a.shape[1] for a in acts}) == 1
     return Dataset.from_trajectories(feats, np.asarray(labels), states=st if keep_states else None,
+                                     actions=acts if keep_actions else None,
                                      feature_names=feature_names, nominal_weights=nominal_weights)
 
 
-def load_feature_function(spec: str) -> FeatureFn:
-    """``"package.module:function"`` or ``"path/to/file.py:function"`` -> the function (for the CLI)."""
+def load_feature_function(spec: str, *, option: str = "--features") -> FeatureFn:
+    """``"package.module:function"`` or ``"path/to/file.py:function"`` -> the function (for the CLI).
+
+    A module is looked up in the working directory first, then among installed packages, as
+    ``python -m`` would: ``--features feats:features`` finds ``./feats.py``.
+
+    Parameters
+    ----------
+    spec : str
+    option : str
+        The command-line option the spec came from, for messages.
+
+    Raises
+    ------
+    ValueError, FileNotFoundError, ImportError
+        Naming ``option``: a malformed spec, a missing file or module, no such function.
+    """
     import importlib
     import importlib.util
+    import sys
     from pathlib import Path
 
-    if ":" not in spec:
-        raise ValueError(f"--features: expected 'module:function' or 'file.py:function', got {spec!r}")
+    if not isinstance(spec, str) or ":" not in spec:
+        raise ValueError(f"{option}: expected 'module:function' or 'file.py:function', got {spec!r}")
     mod_name, _, fn_name = spec.rpartition(":")
+    if not mod_name or not fn_name.isidentifier():
+        raise ValueError(f"{option}: expected 'module:function' or 'file.py:function', got {spec!r}")
     if mod_name.endswith(".py"):
         path = Path(mod_name)
         if not path.is_file():
-            raise FileNotFoundError(f"--features: {path}: no such file")
+            raise FileNotFoundError(f"{option}: {path}: no such file")
         module_spec = importlib.util.spec_from_file_location(path.stem, path)
         if module_spec is None or module_spec.loader is None:
-            raise ValueError(f"--features: cannot import {path}")
+            raise ValueError(f"{option}: cannot import {path}")
         module = importlib.util.module_from_spec(module_spec)
         module_spec.loader.exec_module(module)
     else:
+        # The `pbicrl` console script runs with its own directory on sys.path, not the working directory
+        # that `python -m` or `python -c` would put first; add it for this import only.
+        cwd = os.getcwd()
+        added = cwd not in sys.path
+        if added:
+            sys.path.insert(0, cwd)
         try:
             module = importlib.import_module(mod_name)
         except ImportError as exc:
-            raise ImportError(f"--features: cannot import module {mod_name!r} ({exc})") from exc
+            raise ImportError(f"{option}: cannot import module {mod_name!r} ({exc}); give a module in the working "
+                              f"directory ({cwd}) or an installed one, or a file: {option} path/to/file.py:{fn_name}"
+                              ) from exc
+        finally:
+            if added:
+                try:
+                    sys.path.remove(cwd)
+                except ValueError:
+                    pass
     fn = getattr(module, fn_name, None)
     if not callable(fn):
-        raise ValueError(f"--features: {mod_name} has no function {fn_name!r}")
+        raise ValueError(f"{option}: {mod_name} has no function {fn_name!r}")
     return fn

@@ -1,12 +1,25 @@
-"""One driver for chains and draws: independent chains from one seed, spread over the cores."""
+"""One driver for chains and draws: independent chains from one seed, spread over the cores.
+
+Chain workers never outlive the process that started them: each asks the kernel to end it when its parent
+dies (``PR_SET_PDEATHSIG`` on Linux, a watchdog thread elsewhere; :func:`die_with_parent`), so ``kill -TERM``
+or ``kill -KILL`` of a ``pbicrl`` process leaves no chain running. Workers ignore SIGINT: on Ctrl-C (or
+``kill -INT``) the parent stops them at once instead of waiting for their chains to finish.
+
+The compiled sampler is cached on disk by Numba; the first run of an installation compiles it (about 15 s),
+which :func:`sample` announces on stderr when it shows progress.
+"""
 
 from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
+import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -15,12 +28,126 @@ from pbicrl.likelihood import PreferenceLikelihood
 from pbicrl.results import Posterior
 from pbicrl.samplers.kernels import ChainState, Kernel, SamplerSettings, build_kernel
 
-__all__ = ["sample", "run_chain"]
+__all__ = ["sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling"]
 
+# Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
 _CHUNK = 20_000
 _progress_counter: Any = None  # set in workers (inherited through fork) for the progress bar
+_COMPILE_NOTE = "pbicrl: compiling the sampler (first run only, ~15 s)..."
 
 
+# ---------------------------------------------------------------------------------------------- processes
+def _prctl_pdeathsig(sig: int) -> bool:
+    """``prctl(PR_SET_PDEATHSIG, sig)``: the kernel sends ``sig`` to this process when its parent exits."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        PR_SET_PDEATHSIG = 1
+        return libc.prctl(ctypes.c_int(PR_SET_PDEATHSIG), ctypes.c_ulong(sig), ctypes.c_ulong(0),
+                          ctypes.c_ulong(0), ctypes.c_ulong(0)) == 0
+    except (OSError, AttributeError, TypeError):
+        return False
+
+
+def _exit_now(sig: int) -> None:
+    try:
+        os.kill(os.getpid(), sig)
+        time.sleep(5.0)  # a handler may stop the process more gently; give it a moment
+    finally:
+        os._exit(1)
+
+
+def _watch_parent(parent: int, sig: int, interval: float) -> None:
+    while True:
+        time.sleep(interval)
+        if os.getppid() != parent:
+            _exit_now(sig)
+
+
+def die_with_parent(parent: int | None = None, *, sig: int | None = None, interval: float = 0.5) -> None:
+    """End this (child) process when its parent process ends, however the parent ends.
+
+    Call it first thing in a worker (e.g. as a pool ``initializer``). On Linux the kernel delivers ``sig``
+    when the parent exits (``PR_SET_PDEATHSIG``, immediate, even while the worker runs compiled code);
+    elsewhere a daemon thread polls the parent id every ``interval`` seconds.
+
+    Parameters
+    ----------
+    parent : int, optional
+        The parent's pid as the parent saw it (``os.getpid()`` passed in ``initargs``). If this process has
+        already been re-parented (the parent died before the call), it exits at once.
+    sig : int, optional
+        Signal to end with (default ``SIGKILL``: chains hold nothing worth cleaning up; the parent's next run
+        removes the temporaries of killed workers).
+    interval : float
+        Polling period of the fallback watchdog, in seconds.
+    """
+    if sig is None:
+        sig = int(getattr(signal, "SIGKILL", signal.SIGTERM))
+    expected = os.getppid() if parent is None else int(parent)
+    armed = _prctl_pdeathsig(sig)
+    if os.getppid() != expected:  # the parent died before the request took effect
+        _exit_now(sig)
+    if not armed:
+        threading.Thread(target=_watch_parent, args=(expected, sig, interval), daemon=True,
+                         name="pbicrl-parent-watchdog").start()
+
+
+def _init_worker(counter: Any, parent: int | None = None) -> None:
+    global _progress_counter
+    die_with_parent(parent)
+    # Ctrl-C reaches the whole process group; the parent alone decides, and stops the workers itself.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # A SIGTERM handler inherited through fork (a sweep's, ICL's) must not keep a chain alive on terminate().
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _progress_counter = counter
+
+
+def stop_pool(pool: ProcessPoolExecutor, *, grace: float = 2.0) -> None:
+    """Stop a process pool now, running work included: SIGTERM, then SIGKILL after ``grace`` seconds."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # no public API before Python 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + grace
+    for p in processes:
+        p.join(timeout=max(0.0, deadline - time.monotonic()))
+    for p in processes:
+        if p.is_alive():  # a worker that handles SIGTERM (e.g. to checkpoint) and takes too long
+            p.kill()
+            p.join(timeout=grace)
+
+
+# ---------------------------------------------------------------------------------------------- compiling
+def sampler_needs_compiling() -> bool:
+    """Whether the next chain will compile the sampler: not yet compiled in this process, and no entry in
+    Numba's on-disk cache for the current source. Cheap (reads one small index file); False when unsure."""
+    try:
+        from pbicrl.samplers import _mcmc
+
+        dispatcher = _mcmc.run_chunk
+        if dispatcher.signatures:
+            return False
+        cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
+        if cache_file is None:
+            return False
+        return not cache_file._load_index()  # {} when missing or made from another version of the source
+    except Exception:  # Numba internals differ between versions: never fail (or talk) because of this check
+        return False
+
+
+def _compile_here(kernel: Kernel) -> None:
+    """Compile the sampler in this process (one iteration on a throwaway state), so that forked workers
+    inherit the machine code instead of each compiling it again."""
+    rng = np.random.default_rng(0)
+    kernel.run(rng, kernel.init(rng), 1, kernel.new_buffers(1))
+
+
+# ---------------------------------------------------------------------------------------------- chains
 def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_counter: Any = None) -> dict[str, Any]:
     """Run one chain to completion; returns its draws, MAP, counters and runtime."""
     rng = np.random.default_rng(seed)
@@ -51,9 +178,22 @@ def _worker(args: tuple[Kernel, np.random.SeedSequence]) -> dict[str, Any]:
     return run_chain(args[0], args[1], _progress_counter)
 
 
-def _init_worker(counter: Any) -> None:
-    global _progress_counter
-    _progress_counter = counter
+def _feature_names(likelihood: PreferenceLikelihood, given: Sequence[str] | None) -> tuple[str, ...] | None:
+    """The names of the known features: ``given``, else the likelihood's own (if it carries them)."""
+    names = given if given is not None else getattr(likelihood, "feature_names", None)
+    if names is None or (not isinstance(names, str) and len(names) == 0 and given is None):
+        return None
+    if isinstance(names, (str, bytes)):
+        raise ValueError(f"feature_names: expected a sequence of names, got the single string {names!r}")
+    out = tuple(n.decode("utf-8") if isinstance(n, bytes) else n for n in names)
+    d = likelihood.n_features
+    if len(out) != d:
+        raise ValueError(f"feature_names: expected {d} names (one per feature of the likelihood), got {len(out)}")
+    if not all(isinstance(n, str) and n.strip() for n in out):
+        raise ValueError(f"feature_names: expected non-empty strings, got {list(out)}")
+    if len(set(out)) != d:
+        raise ValueError(f"feature_names: names must be unique, got {list(out)}")
+    return out
 
 
 def sample(
@@ -64,8 +204,9 @@ def sample(
     seed: int = 0,
     n_jobs: int | None = None,
     progress: bool = True,
-    feature_names: tuple[str, ...] | None = None,
+    feature_names: Sequence[str] | None = None,
     constraints: ConstraintSet | None = None,
+    identified: Any = None,
     **overrides: Any,
 ) -> Posterior:
     """Sample the posterior with ``n_chains`` independent chains.
@@ -80,47 +221,85 @@ def sample(
         so results do not depend on ``n_jobs``.
     seed : int
     n_jobs : int, optional
-        Worker processes (default: one per core, at most one per chain). 1 runs in-process.
+        Worker processes (default: one per core, at most one per chain). 1 runs in-process; compiled code
+        cannot be interrupted, so Ctrl-C then takes effect at the end of the current chunk of 20,000
+        iterations (with workers it stops them at once).
     progress : bool
-        Show a progress bar (on stderr).
-    feature_names : tuple of str, optional
-        Names of the known features (parametric constraints are named after themselves).
+        Show a progress bar (on stderr), preceded by a note when the sampler has to be compiled first.
+    feature_names : sequence of str, optional
+        Names of the known features, one per column of the likelihood (``dataset.feature_names``). Default:
+        the likelihood's ``feature_names`` if it has them, else ``f0, f1, ...``. Parametric constraints are
+        named after themselves.
     constraints : ConstraintSet, optional
         Parametric constraints (paper Algorithm 2), appended after the known features.
+    identified : Identification or dict, optional
+        Result of :func:`pbicrl.identify.identify` for these data: recorded in ``summary.json`` and used for
+        the warnings and the ``prior_driven`` flags.
+
+    Raises
+    ------
+    ValueError
+        Bad settings, chains or ``feature_names`` (the message names the argument).
+    KeyboardInterrupt
+        On Ctrl-C, after the worker processes have been stopped.
     """
+    names = _feature_names(likelihood, feature_names)
     kernel = build_kernel(likelihood, settings, constraints=constraints, **overrides)
     if int(n_chains) < 1:
         raise ValueError(f"chains: need at least 1 chain, got {n_chains}")
     seeds = np.random.SeedSequence(int(seed)).spawn(int(n_chains))
     n_jobs = min(int(n_chains), os.cpu_count() or 1) if n_jobs is None else max(1, min(int(n_jobs), int(n_chains)))
+    if sampler_needs_compiling():
+        if progress:
+            print(_COMPILE_NOTE, file=sys.stderr, flush=True)
+        if n_jobs > 1:
+            _compile_here(kernel)  # once here rather than once per worker
     total = int(kernel.settings.n_iterations) * int(n_chains)
     bar = _progress_bar(total, progress)
     t0 = time.perf_counter()
-    if n_jobs == 1:
-        results = []
-        for s in seeds:
-            counter = _LocalCounter(bar)
-            results.append(run_chain(kernel, s, counter))
-    else:
-        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
-        counter = ctx.Value("q", 0)
-        with ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx, initializer=_init_worker, initargs=(counter,)) as ex:
-            futures = [ex.submit(_worker, (kernel, s)) for s in seeds]
-            last = 0
-            while not all(f.done() for f in futures):
-                time.sleep(0.1)
-                v = counter.value
-                if bar is not None:
-                    bar.update(v - last)
-                last = v
-            results = [f.result() for f in futures]
-            if bar is not None:
-                bar.update(counter.value - last)
-    if bar is not None:
-        bar.close()
+    try:
+        if n_jobs == 1:
+            results = []
+            for s in seeds:
+                counter = _LocalCounter(bar)
+                results.append(run_chain(kernel, s, counter))
+        else:
+            results = _run_pool(kernel, seeds, n_jobs, bar)
+    finally:
+        if bar is not None:
+            bar.close()
     runtime = time.perf_counter() - t0
-    return Posterior.from_chains(results, kernel=kernel, seed=int(seed), runtime_s=runtime,
-                                 feature_names=feature_names)
+    return Posterior.from_chains(results, kernel=kernel, seed=int(seed), runtime_s=runtime, feature_names=names,
+                                 identified=identified)
+
+
+def _run_pool(kernel: Kernel, seeds: Sequence[np.random.SeedSequence], n_jobs: int, bar: Any) -> list[dict[str, Any]]:
+    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
+    counter = ctx.Value("q", 0)
+    pool = ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx, initializer=_init_worker,
+                               initargs=(counter, os.getpid()))
+    try:
+        futures = [pool.submit(_worker, (kernel, s)) for s in seeds]
+        last = 0
+        while not all(f.done() for f in futures):
+            time.sleep(0.1)
+            v = counter.value
+            if bar is not None:
+                bar.update(v - last)
+            last = v
+        try:
+            results = [f.result() for f in futures]
+        except BrokenProcessPool:
+            raise RuntimeError("sampling: a chain worker process died (killed for memory, or by a signal); "
+                               "rerun with fewer --jobs or chains") from None
+        if bar is not None:
+            bar.update(counter.value - last)
+    except BaseException:
+        # Ctrl-C, an error, or a failing chain: stop the other chains now instead of waiting for them
+        stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+    return results
 
 
 class _LocalCounter:

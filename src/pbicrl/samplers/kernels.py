@@ -26,20 +26,28 @@ Three methods share one compiled loop (:mod:`pbicrl.samplers._mcmc`):
     likelihood ratio alone (flat improper prior). Kept for exact reproduction; as a sampler it mixes
     poorly (a feature switched back on proposes its stale latent weight).
 
-``"bpl"`` - Algorithm 3: every feature active, random walk on :math:`w_p` (optionally with a prior).
+``"bpl"`` - Algorithm 3: every candidate feature active, random walk on :math:`w_p` (optionally with a
+    prior). Features that are not candidates keep :math:`w_j = 0`: they are not part of the model.
+
+Priors (:mod:`pbicrl.priors`) are resolved against the likelihood's data once per kernel
+(:attr:`Kernel.resolved_prior`): a scale-aware prior gets its per-feature scales
+:math:`s_j = \\text{prior\\_scale}/(\\beta\\,\\mathrm{sd}_j)` there, and the ``pbicrl``/``bpl`` samplers measure
+their random-walk steps, ``bpl``'s initial weights and the initial flip proposals in the same per-feature
+unit :math:`1/(\\beta\\,\\mathrm{sd}_j)`, so rescaling a feature rescales its chain and nothing else.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Literal, NamedTuple
+from functools import cached_property
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl.constraints import ConstraintSet
 from pbicrl.likelihood import PreferenceLikelihood
-from pbicrl.priors import IndicatorPrior, PriorError, WeightPrior
+from pbicrl.priors import IndicatorPrior, PriorError, ResolvedWeightPrior, WeightPrior, truncated_normal_ppf
 from pbicrl.samplers import _mcmc
 
 __all__ = ["SamplerSettings", "ChainState", "StepInfo", "Kernel", "build_kernel", "METHODS"]
@@ -63,7 +71,9 @@ class SamplerSettings:
     thin : int or None
         Keep every ``thin``-th draw after warm-up. Default: at most 10,000 draws per chain.
     sigma : float
-        Random-walk standard deviation :math:`\\sigma` (initial value when adapting). Paper: 0.1.
+        Random-walk standard deviation :math:`\\sigma` (initial value when adapting). Paper: 0.1. With a
+        scale-aware weight prior, ``pbicrl`` and ``bpl`` use :math:`\\sigma / (\\beta\\,\\mathrm{sd}_j)` for
+        feature :math:`j` (:math:`\\sigma` per standard deviation of the feature).
     f_s : int
         Paper mode: sampling frequency :math:`f_s` (weight step when :math:`i \\bmod f_s = 0`). Paper: 4.
     p_flip : float
@@ -72,10 +82,13 @@ class SamplerSettings:
         Adapt step sizes and flip proposals during warm-up. Default: on for ``pbicrl``, off otherwise
         (the paper's algorithms use a fixed :math:`\\sigma`).
     init_scale : float
-        Initial weights are drawn :math:`\\mathcal{N}(0, \\text{init\\_scale}^2)` (clipped to the prior bounds);
-        initial indicators Bernoulli(1/2), as the paper's random initialisation.
+        ``paper``: initial latent weights :math:`\\mathcal{N}(0, \\text{init\\_scale}^2)` (Algorithm 1 verbatim).
+        ``bpl``: the same normal (per standard deviation of the feature for a scale-aware prior) restricted to the
+        prior's support, drawn exactly. ``pbicrl`` draws the initial weights from the prior instead. Initial
+        indicators are Bernoulli(1/2), as the paper's random initialisation.
     weight_prior, indicator_prior
-        Priors (see :mod:`pbicrl.priors`). The paper mode ignores them (flat improper).
+        Priors (see :mod:`pbicrl.priors`); default: half-Student-t (3 degrees of freedom, scale
+        2.5 / (beta sd_j)) on :math:`(-\\infty, 0]`, and Bernoulli(1/2). The paper mode ignores them (flat improper).
     candidates : sequence of int or None
         Features that may be constraints (default: all known features, or only the parametric
         constraints when there are any, as in Algorithm 2). Others keep :math:`c_j = 0`.
@@ -125,7 +138,7 @@ class SamplerSettings:
             raise ValueError(f"init_scale: must be positive, got {self.init_scale}")
         if self.method == "pbicrl" and self.weight_prior.kind == "improper":
             raise PriorError("weight prior: the pbicrl sampler needs a proper prior on w_p (P(c=1) is undefined "
-                             "otherwise); use 'flat' with bounds, or method='paper'")
+                             "otherwise); use 'student_t', 'normal' or 'flat' with bounds, or method='paper'")
         if self.candidates is not None:
             object.__setattr__(self, "candidates", tuple(int(j) for j in self.candidates))
         if not (np.isfinite(self.sigma_theta) and self.sigma_theta > 0):
@@ -268,9 +281,50 @@ class Kernel:
             return float(self.settings.p_theta)
         return 0.25 if self.settings.method == "pbicrl" else 0.5
 
+    @cached_property
+    def _settings_prior(self) -> ResolvedWeightPrior:
+        """The settings' weight prior resolved against the likelihood's data (whatever the method)."""
+        return self.settings.weight_prior.resolve(self.likelihood.mean_features, beta=self.likelihood.beta,
+                                                  n_parametric=self.n_features - self.d_known)
+
+    @cached_property
+    def resolved_prior(self) -> ResolvedWeightPrior:
+        """The weight prior the sampler uses, resolved per feature against the likelihood's data.
+
+        Scale-aware priors get :math:`s_j = \\text{prior\\_scale} / (\\beta\\,\\mathrm{sd}_j)` from the likelihood's
+        ``mean_features`` and ``beta``; parametric constraint features use :math:`\\mathrm{sd} = 0.5`. The paper
+        mode uses the flat improper prior of Algorithm 1, whatever the settings say.
+        """
+        if self.settings.method == "paper":
+            return WeightPrior("improper", sign="any").resolve(self.likelihood.mean_features, beta=self.likelihood.beta,
+                                                               n_parametric=self.n_features - self.d_known)
+        return self._settings_prior
+
+    @cached_property
+    def _prior_arrays_cached(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        return self.resolved_prior.as_arrays()
+
     def _prior_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        prior = WeightPrior("improper") if self.settings.method == "paper" else self.settings.weight_prior
-        return prior.as_arrays(self.n_features)
+        """``(pkind, prm)`` for the compiled loop (resolved once per kernel)."""
+        return self._prior_arrays_cached
+
+    def prior_summary(self) -> dict[str, Any]:
+        """JSON-ready record of the priors as the sampler uses them (for ``summary.json``).
+
+        Keys: the weight prior's choices (``kind``, ``sign``, ``low``/``high``/``support`` with ``None`` for
+        infinite ends, ``mean``, ``scale``, ``df``, ``prior_scale``, ``scale_aware``), ``beta``, ``features``
+        (by feature index as a string: resolved ``scale`` :math:`s_j`, ``feature_sd``, ``sd_source``,
+        ``support``), ``method``, ``applied`` (False in paper mode, which ignores priors) and ``indicator_pi``.
+        """
+        s = self.settings
+        out = self.resolved_prior.to_dict()
+        out.update({"method": s.method, "applied": s.method != "paper",
+                    "indicator_pi": None if s.method == "bpl" else float(s.indicator_prior.pi)})
+        return out
+
+    def _step_unit(self) -> NDArray[np.float64]:
+        """Per-feature unit of random-walk steps: 1 in paper mode (Algorithm 1 verbatim), else the prior's."""
+        return np.ones(self.n_features) if self.settings.method == "paper" else self.resolved_prior.unit
 
     def _param_arrays(self) -> dict[str, NDArray]:
         if self.constraints is not None:
@@ -286,7 +340,7 @@ class Kernel:
         s = self.settings
         if s.method == "paper":
             return 0.0
-        lpw = s.weight_prior.logpdf(w)
+        lpw = self.resolved_prior.logpdf(w)
         cs = self.constraints
         lpt = np.zeros(self.n_features)
         if cs is not None:
@@ -294,7 +348,8 @@ class Kernel:
             for m in range(cs.n_constraints):
                 lpt[self.d_known + m] = -width[cs.param_offsets[m]:cs.param_offsets[m + 1]].sum()
         if s.method == "bpl":
-            return float(np.sum(lpw) + np.sum(lpt))
+            cand = self._cand  # non-candidates are fixed at w = 0, not parameters of the model
+            return float(np.sum(lpw[cand]) + np.sum(lpt[cand]))
         on = c.astype(bool)
         return float(np.sum(lpw[on]) + np.sum(lpt[on]) + on.sum() * s.indicator_prior.log_odds)
 
@@ -315,21 +370,33 @@ class Kernel:
         return np.ascontiguousarray(np.concatenate(rows, axis=0))
 
     def init(self, rng: np.random.Generator | int | None = None) -> ChainState:
-        """Random initial state (paper: "randomly sample penalty weight, constraint features and theta")."""
+        """Random initial state (paper: "randomly sample penalty weight, constraint features and theta").
+
+        Indicators: Bernoulli(1/2) on the candidates (``bpl``: all on). Weights: ``pbicrl`` draws each active
+        one from the prior; ``paper`` draws :math:`\\mathcal{N}(0, \\text{init\\_scale}^2)` latent weights for every
+        feature, as Algorithm 1; ``bpl`` draws candidates from that normal (in the prior's step unit) restricted
+        to the prior's support, and fixes the others at 0. Every draw is exact (nothing is clipped) and lies in
+        the prior's support. Flip proposals :math:`q_j` start from the prior's scale
+        (:meth:`pbicrl.priors.ResolvedWeightPrior.proposal`).
+        """
         rng = np.random.default_rng(rng)
         s = self.settings
         lik = self.likelihood
         d = self.n_features
         cand = self._cand
+        prior = self.resolved_prior
+        unit = self._step_unit()
         c = np.zeros(d, dtype=np.int8)
         if s.method == "bpl":
             c[:] = 1
         else:
             c[cand] = rng.integers(0, 2, cand.size).astype(np.int8)
-        w_draw = rng.normal(0.0, s.init_scale, d)
-        if s.method != "paper":
-            w_draw = np.clip(w_draw, s.weight_prior.low, s.weight_prior.high)
-        w = np.where(c == 1, w_draw, 0.0) if s.method == "pbicrl" else w_draw
+        if s.method == "paper":
+            w = rng.normal(0.0, s.init_scale, d)
+        elif s.method == "bpl":
+            w = self._bpl_initial_weights(rng)
+        else:
+            w = np.where(c == 1, prior.sample(rng), 0.0)
         P = self.n_params
         if self.constraints is not None:
             lo, hi = self.constraints.bounds[:, 0], self.constraints.bounds[:, 1]
@@ -343,12 +410,38 @@ class Kernel:
         a = _returns(FbT, wn + c * w)
         ll = lik.from_scaled_returns(a)
         lp = self._log_prior(c, w, theta)
-        sigma = np.full(d, float(s.sigma))
-        q_scale = np.full(d, max(10.0 * s.sigma, 2.0 * s.init_scale) if s.weight_prior.kind == "improper"
-                          else max(10.0 * s.sigma, (s.weight_prior.high - s.weight_prior.low) / 20.0))
-        return ChainState(c, w, theta.copy(), a, FbT, ll, lp, 0, sigma, np.zeros(d), q_scale, sig_t.copy(),
+        sigma = float(s.sigma) * unit
+        # Flip-and-draw proposals from the prior's own scale (ResolvedWeightPrior.proposal). Only pbicrl uses
+        # them; the other methods record them from the settings' prior, as they always did.
+        qprior = self._settings_prior
+        if qprior.kind == "improper":
+            q_mean, q_scale = np.zeros(d), np.maximum(10.0 * sigma, 2.0 * s.init_scale * unit)
+        else:
+            q_mean, q_sd = qprior.proposal()
+            q_scale = np.maximum(10.0 * sigma, q_sd)
+        return ChainState(c, w, theta.copy(), a, FbT, ll, lp, 0, sigma, q_mean, q_scale, sig_t.copy(),
                           qt_mu.copy(), qt_s.copy(), np.zeros((5, d)), np.zeros((5, P)), c.copy(), w.copy(),
                           theta.copy(), ll + lp, ll, np.zeros(_mcmc.N_COUNTS, dtype=np.int64))
+
+    def _bpl_initial_weights(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        """:math:`\\mathcal{N}(0, (\\text{init\\_scale}\\,u_j)^2)` restricted to the prior's support, candidates only.
+
+        Draw the normal for every feature first (the rng call of the paper's BPL initialisation), then redraw
+        the candidates that fell outside the support from the truncated normal by its inverse CDF. That is
+        exact: :math:`P(A) = N(A \\cap S) + (1 - N(S))\\,N(A \\cap S)/N(S) = N(A \\cap S)/N(S)`. With a wide
+        ``flat`` prior nothing falls outside and no further random numbers are used.
+        """
+        s = self.settings
+        prior = self.resolved_prior
+        unit = self._step_unit()
+        w = rng.normal(0.0, s.init_scale, self.n_features) * unit  # unit is exactly 1 unless scale-aware
+        is_cand = np.zeros(self.n_features, dtype=bool)
+        is_cand[self._cand] = True
+        out = is_cand & ~((w >= prior.low) & (w <= prior.high))
+        if out.any():
+            k = np.flatnonzero(out)
+            w[k] = truncated_normal_ppf(rng.random(k.size), 0.0, s.init_scale * unit[k], prior.low[k], prior.high[k])
+        return np.where(is_cand, w, 0.0)
 
     def _pmax(self) -> int:
         if self.constraints is None:
@@ -429,4 +522,5 @@ def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | N
     if constraints is not None and constraints.dataset.n_trajectories != likelihood.mean_features.shape[0]:
         raise ValueError("constraints: built on a dataset with a different number of trajectories than the likelihood")
     kernel._cand  # validate candidates now  # noqa: B018
+    kernel.resolved_prior  # and the prior against the data (e.g. a support without prior mass)  # noqa: B018
     return kernel

@@ -37,7 +37,7 @@ def reference_chain(
     u_j, u_mv, z, u_acc = randoms[:4]
     n = u_j.size
     d = lik.n_features
-    prior = weight_prior or WeightPrior()
+    prior = (weight_prior or WeightPrior()).resolve(lik.mean_features, beta=lik.beta)
     log_odds = (indicator_prior or IndicatorPrior()).log_odds
     qm = np.zeros(d) if q_mean is None else q_mean
     qs = np.ones(d) if q_scale is None else q_scale
@@ -48,8 +48,8 @@ def reference_chain(
         a = lik.beta * (lik.mean_features @ (lik.nominal_weights + cc * ww))
         return log_likelihood_numpy(a, lik.preferences)
 
-    def lpw(x: float) -> float:
-        return float(prior.logpdf(np.array(x)))
+    def lpw(x: float, j: int) -> float:
+        return float(prior.logpdf(np.array(x), j=j))
 
     def lq(x: float, j: int) -> float:
         return -0.5 * ((x - qm[j]) / qs[j]) ** 2 - math.log(qs[j]) - 0.5 * math.log(2 * math.pi)
@@ -72,8 +72,8 @@ def reference_chain(
         elif method == "bpl":
             w2 = w.copy()
             w2[j] += sigma * z[t]
-            lr = loglik(c, w2) - ll + lpw(w2[j]) - lpw(w[j])
-            if lpw(w2[j]) > -np.inf and (lr >= 0 or math.log(u_acc[t]) < lr):
+            lr = loglik(c, w2) - ll + lpw(w2[j], j) - lpw(w[j], j)
+            if lpw(w2[j], j) > -np.inf and (lr >= 0 or math.log(u_acc[t]) < lr):
                 w, ll = w2, loglik(c, w2)
         else:
             if u_mv[t] < p_flip:
@@ -81,15 +81,15 @@ def reference_chain(
                 if c[j] == 0:
                     w2[j] = qm[j] + qs[j] * z[t]
                     c2[j] = 1
-                    if lpw(w2[j]) > -np.inf:
+                    if lpw(w2[j], j) > -np.inf:
                         ll2 = loglik(c2, w2)
-                        if math.log(u_acc[t]) < ll2 - ll + log_odds + lpw(w2[j]) - lq(w2[j], j):
+                        if math.log(u_acc[t]) < ll2 - ll + log_odds + lpw(w2[j], j) - lq(w2[j], j):
                             c, w, ll = c2, w2, ll2
                 else:
                     c2[j] = 0
                     w2[j] = 0.0
                     ll2 = loglik(c2, w2)
-                    if math.log(u_acc[t]) < ll2 - ll - log_odds - lpw(w[j]) + lq(w[j], j):
+                    if math.log(u_acc[t]) < ll2 - ll - log_odds - lpw(w[j], j) + lq(w[j], j):
                         c, w, ll = c2, w2, ll2
             else:
                 on = np.flatnonzero(c == 1)
@@ -97,9 +97,9 @@ def reference_chain(
                     j = on[min(int(u_j[t] * on.size), on.size - 1)]
                     w2 = w.copy()
                     w2[j] += sigma * z[t]
-                    if lpw(w2[j]) > -np.inf:
+                    if lpw(w2[j], j) > -np.inf:
                         ll2 = loglik(c, w2)
-                        lr = ll2 - ll + lpw(w2[j]) - lpw(w[j])
+                        lr = ll2 - ll + lpw(w2[j], j) - lpw(w[j], j)
                         if lr >= 0 or math.log(u_acc[t]) < lr:
                             w, ll = w2, ll2
         out_c[t], out_w[t], out_ll[t] = c, w, ll

@@ -1,0 +1,290 @@
+"""ArviZ export: each variable once, a pointwise log-likelihood per trajectory that sums to the total, and
+``az.loo`` / ``az.summary`` on the result."""
+
+from __future__ import annotations
+
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import pbicrl
+from pbicrl import export
+from pbicrl.errors import PbicrlWarning
+from pbicrl.constraints import ConstraintSet, constraint_from_dict
+from pbicrl.likelihood import PreferenceLikelihood
+from pbicrl.preferences import Margins, Preferences
+from pbicrl.runs import load_run
+from pbicrl.samplers import sample
+from pbicrl.synthetic import make_problem, make_wall_problem
+
+
+def _groups(data):
+    """Group names of an InferenceData (arviz < 1) or a DataTree (arviz >= 1)."""
+    return set(data.children) if hasattr(data, "children") else set(data.groups())
+
+
+def _stat(elpd, *names):
+    """A field of az.loo's result under its arviz 0.x or 1.x name."""
+    for n in names:
+        try:
+            return elpd[n]
+        except (KeyError, TypeError, IndexError):
+            if hasattr(elpd, n):
+                return getattr(elpd, n)
+    raise AttributeError(names)
+
+
+def _sample_run(ds, *, margins=None, constraints=None, power=1.0, **kw):
+    """What ``pbicrl.infer`` does for the pairwise likelihood, through the lower-level API: the export needs a
+    pairwise run and the run's record (margins, data path), nothing of ``infer``'s other choices."""
+    lik = PreferenceLikelihood.from_dataset(ds, margins=margins, power=power)
+    cset = ConstraintSet(tuple(constraint_from_dict(c) for c in constraints), ds) if constraints else None
+    kw = {"n_iterations": 4000, "weight_prior": pbicrl.WeightPrior("flat", -50, 50)} | kw
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PbicrlWarning)  # short chains: R-hat / ESS warnings are expected
+        post = sample(lik, n_chains=2, seed=1, n_jobs=1, progress=False, feature_names=ds.feature_names,
+                      constraints=cset, **kw)
+    post.extra.update({"data": {}, "margins": Margins.parse(margins, ds.n_groups).as_dict()})
+    return post
+
+
+@pytest.fixture(scope="module")
+def ranked():
+    """Groups ranked by a noisy return: no trajectory is certain, so PSIS-LOO is well defined."""
+    prob = make_problem(12, noise=1.0, seed=5)
+    return prob, _sample_run(prob.dataset, margins=[0.5, 1.0])
+
+
+@pytest.fixture(scope="module")
+def run_dir(ranked, tmp_path_factory):
+    prob, post = ranked
+    d = tmp_path_factory.mktemp("export")
+    post.extra["data"]["path"] = str(prob.dataset.save(d / "data.npz"))
+    return post.save(d / "run")
+
+
+# --------------------------------------------------------------------------------------- pointwise_loglik
+def _brute_force(lik, a):
+    """Per trajectory: half of every pair term it takes part in, one pair at a time."""
+    I, J, M = lik.preferences.to_pair_list()
+    out = np.zeros(a.size)
+    for i, j, m in zip(I, J, M):
+        t = -np.logaddexp(0.0, a[j] + m - a[i])
+        out[i] += 0.5 * t
+        out[j] += 0.5 * t
+    return lik.power * out
+
+
+@pytest.mark.parametrize("protocol, power", [("all", 1.0), (7, 1.0), ("all", 0.3)])
+def test_shares_sum_to_the_total_log_likelihood(protocol, power):
+    prob = make_problem(20, seed=2)
+    ds = prob.dataset
+    lik = PreferenceLikelihood.from_dataset(ds, margins=[0.5, 2.0], protocol=protocol, power=power, seed=4)
+    rng = np.random.default_rng(0)
+    for scale in (0.1, 3.0, 300.0):  # overlapping returns up to returns 1e3 apart (exact-fallback regime)
+        a = rng.normal(0.0, scale, ds.n_trajectories)
+        pw = export.pointwise_loglik(lik, a)
+        assert pw.shape == (ds.n_trajectories,) and np.all(pw <= 0)
+        np.testing.assert_allclose(pw.sum(), lik.from_scaled_returns(a), rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(pw, _brute_force(lik, a), rtol=1e-10, atol=1e-12)
+
+
+def test_explicit_pairs_with_repeats_and_unused_trajectories():
+    pairs = np.array([[0, 1], [0, 1], [2, 0], [1, 2]])  # a repeated comparison counts twice; 3 is in none
+    lik = PreferenceLikelihood(np.eye(4)[:, :2], Preferences.from_pairs(pairs, 4, margins=0.5), np.zeros(2))
+    a = np.array([1.0, -0.5, 2.0, 7.0])
+    pw = export.pointwise_loglik(lik, a)
+    np.testing.assert_allclose(pw, _brute_force(lik, a), rtol=1e-12)
+    assert pw[3] == 0.0
+    np.testing.assert_allclose(pw.sum(), lik.from_scaled_returns(a), rtol=1e-12)
+
+
+def test_kinds_and_shapes_are_checked():
+    prefs = Preferences.from_groups([1, 1, 2, 2])
+    grouped = SimpleNamespace(kind="grouped", preferences=prefs, power=1.0)
+    with pytest.raises(NotImplementedError, match="grouped"):
+        export.pointwise_loglik(grouped, np.zeros(4))
+    with pytest.raises(ValueError, match="unknown likelihood kind 'listwise'"):
+        export.pointwise_loglik(SimpleNamespace(kind="listwise", preferences=prefs), np.zeros(4))
+    lik = PreferenceLikelihood(np.ones((4, 1)), prefs, np.zeros(1))
+    with pytest.raises(ValueError, match="expected 4 scaled returns"):
+        export.pointwise_loglik(lik, np.zeros(3))
+
+
+# --------------------------------------------------------------------------------------- to_arviz
+def test_each_variable_once_and_a_pointwise_log_likelihood(run_dir, ranked):
+    pytest.importorskip("arviz")
+    prob, post = ranked
+    run = load_run(run_dir)
+    data = export.to_arviz(run, pointwise_draws=40)  # the dataset is found from the run's recorded path
+    p = data["posterior"]
+    assert set(p.data_vars) == {"indicator", "penalty"}  # pbicrl stores w_p = 0 while off: no duplicate
+    np.testing.assert_allclose(p["penalty"].values, run.effective_penalty)
+    ll = data["log_likelihood"]["preferences"]
+    N = prob.dataset.n_trajectories
+    assert ll.dims == ("chain", "draw", "trajectory") and ll.shape == (run.n_chains, 40, N)
+    draws = ll["draw"].values
+    assert draws[0] == 0 and draws[-1] == run.n_draws - 1 and np.all(np.diff(draws) > 0)
+    np.testing.assert_allclose(ll.sum("trajectory").values, run.log_likelihood[:, draws], rtol=1e-9, atol=1e-9)
+    stats = data["sample_stats"]
+    np.testing.assert_allclose(stats["log_likelihood"].values, run.log_likelihood)
+    np.testing.assert_allclose(stats["lp"].values, run.log_likelihood + run.log_prior)
+    np.testing.assert_array_equal(data["constant_data"]["group"].values, prob.dataset.group)
+    full = export.to_arviz(run, pointwise_draws=None)
+    assert full["log_likelihood"]["preferences"].shape[1] == run.n_draws
+    with pytest.raises(ValueError, match="pointwise_draws"):  # an error, not a warning, even in "auto" mode
+        export.to_arviz(run, pointwise_draws=0)
+
+
+def test_az_loo_and_summary(run_dir, ranked):
+    az = pytest.importorskip("arviz", reason="the ArviZ checks need arviz (pip install \"pbicrl[diag]\")")
+    prob, _ = ranked
+    data = export.to_arviz(load_run(run_dir), pointwise_draws=200)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Pareto-k warnings of short chains are not the point here
+        loo = az.loo(data, pointwise=True)
+    # one observation per trajectory (the export used to give ArviZ "1.0 observations")
+    assert int(_stat(loo, "n_data_points")) == prob.dataset.n_trajectories
+    elpd, p_loo = float(_stat(loo, "elpd_loo", "elpd")), float(_stat(loo, "p_loo", "p"))
+    assert np.isfinite(elpd) and elpd < 0
+    assert 0 < p_loo < 10 * prob.dataset.n_features
+    summ = az.summary(data)
+    names = prob.dataset.feature_names
+    assert {f"penalty[{n}]" for n in names} | {f"indicator[{n}]" for n in names} == set(summ.index)
+    assert {"mean", "sd"} <= set(summ.columns)
+
+
+def test_paper_sampler_keeps_its_latent_weight():
+    pytest.importorskip("arviz")
+    prob = make_problem(10, seed=3)
+    post = _sample_run(prob.dataset, method="paper", n_iterations=3000)
+    data = export.to_arviz(post, dataset=prob.dataset, pointwise_draws=20)
+    p = data["posterior"]
+    assert {"indicator", "penalty", "penalty_weight"} == set(p.data_vars)
+    np.testing.assert_allclose(p["penalty_weight"].values, post.penalty_weights)
+    ll = data["log_likelihood"]["preferences"]
+    np.testing.assert_allclose(ll.sum("trajectory").values, post.log_likelihood[:, ll["draw"].values], rtol=1e-9)
+
+
+def test_parametric_constraints_follow_each_draws_location():
+    pytest.importorskip("arviz")
+    prob = make_wall_problem(8, seed=0)
+    post = _sample_run(prob.dataset, n_iterations=3000,
+                  constraints=[{"family": "axis_halfspace", "dims": [0], "name": "wall"}])
+    data = export.to_arviz(post, dataset=prob.dataset, pointwise_draws=30)
+    assert list(data["posterior"]["parameter"].coords["param"].values) == ["wall.threshold"]
+    ll = data["log_likelihood"]["preferences"]
+    np.testing.assert_allclose(ll.sum("trajectory").values, post.log_likelihood[:, ll["draw"].values],
+                               rtol=1e-9, atol=1e-9)
+
+
+def test_without_the_likelihood_there_is_no_log_likelihood_group(ranked):
+    pytest.importorskip("arviz")
+    prob, post = ranked
+    bare = SimpleNamespace(**{k: getattr(post, k) for k in (
+        "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
+        "map_penalty_weights", "method", "settings", "seed")}, extra={})
+    with pytest.warns(PbicrlWarning, match="pass dataset="):
+        data = export.to_arviz(bare)
+    assert "log_likelihood" not in _groups(data) and "log_likelihood" in data["sample_stats"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PbicrlWarning)
+        assert "log_likelihood" not in _groups(export.to_arviz(bare, pointwise=False))
+    with pytest.raises(ValueError, match="pass dataset="):
+        export.to_arviz(bare, pointwise=True)
+
+
+def test_settings_that_do_not_reproduce_the_run_are_refused(ranked):
+    pytest.importorskip("arviz")
+    prob, post = ranked
+    wrong = SimpleNamespace(**{k: getattr(post, k) for k in (
+        "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
+        "map_penalty_weights", "method", "seed", "extra")}, settings=post.settings | {"beta": 2.0})
+    with pytest.raises(ValueError, match="the run recorded"):
+        export.run_likelihood(wrong, prob.dataset)
+    with pytest.warns(PbicrlWarning, match="the run recorded"):
+        data = export.to_arviz(wrong, dataset=prob.dataset)
+    assert "log_likelihood" not in _groups(data)
+    lik = PreferenceLikelihood.from_dataset(prob.dataset, margins=[0.5, 1.0])  # the right one, given explicitly
+    data = export.to_arviz(wrong, likelihood=lik, pointwise_draws=10)
+    ll = data["log_likelihood"]["preferences"]
+    np.testing.assert_allclose(ll.sum("trajectory").values, post.log_likelihood[:, ll["draw"].values], rtol=1e-9)
+
+
+def test_a_tempered_run_needs_its_power_recorded():
+    pytest.importorskip("arviz")
+    prob = make_problem(8, noise=1.0, seed=4)
+    post = _sample_run(prob.dataset, power=0.25, n_iterations=2000)
+    if "power" not in post.settings:  # a run that does not record its power cannot be rebuilt: refused
+        with pytest.raises(ValueError, match="the run recorded"):
+            export.run_likelihood(post, prob.dataset)
+        post.extra["power"] = 0.25
+    data = export.to_arviz(post, dataset=prob.dataset, pointwise_draws=10, pointwise=True)
+    ll = data["log_likelihood"]["preferences"]
+    assert ll.attrs["power"] == 0.25
+    np.testing.assert_allclose(ll.sum("trajectory").values, post.log_likelihood[:, ll["draw"].values], rtol=1e-9)
+
+
+def test_a_grouped_run_has_no_pointwise_split_yet(ranked):
+    pytest.importorskip("arviz")
+    prob, post = ranked
+    grouped = SimpleNamespace(**{k: getattr(post, k) for k in (
+        "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
+        "map_penalty_weights", "method", "settings", "seed")}, extra=dict(post.extra) | {"likelihood": "grouped"})
+    with pytest.raises(NotImplementedError, match="'grouped' likelihood"):
+        export.run_likelihood(grouped, prob.dataset)
+    with pytest.raises(NotImplementedError):
+        export.to_arviz(grouped, dataset=prob.dataset, pointwise=True)
+    with pytest.warns(PbicrlWarning, match="no per-trajectory split"):
+        data = export.to_arviz(grouped, dataset=prob.dataset)
+    assert "log_likelihood" not in _groups(data)
+
+
+def test_per_draw_move_and_acceptance_go_to_sample_stats(ranked):
+    pytest.importorskip("arviz")
+    _, post = ranked
+    C, D = post.log_likelihood.shape
+    rng = np.random.default_rng(1)
+    fake = SimpleNamespace(**{k: getattr(post, k) for k in (
+        "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
+        "map_penalty_weights", "method", "settings", "seed")}, extra={},
+        move=rng.integers(1, 3, (C, D)), accepted=rng.random((C, D)) < 0.3,
+        acceptance_fraction=rng.random((C, D)))
+    stats = export.to_arviz(fake, pointwise=False)["sample_stats"]
+    np.testing.assert_array_equal(stats["move"].values, fake.move)
+    assert stats["accepted"].dtype == bool and stats["move"].attrs["flag_meanings"] == "none flip weight parameter"
+    np.testing.assert_allclose(stats["acceptance_rate"].values, fake.acceptance_fraction)
+    # chains that do not record them: only the per-draw totals
+    plain = export.to_arviz(post, pointwise=False)["sample_stats"]
+    assert set(plain.data_vars) == {"log_likelihood", "lp", "log_prior"}
+
+
+def test_netcdf_round_trip_keeps_the_thinned_draws(run_dir, tmp_path):
+    az = pytest.importorskip("arviz")
+    pytest.importorskip("h5netcdf")
+    out = export.to_netcdf(load_run(run_dir), tmp_path / "post.nc", pointwise_draws=25)
+    back = az.from_netcdf(out)
+    assert back["log_likelihood"]["preferences"].shape[1] == 25
+    assert back["posterior"]["penalty"].shape[1] == load_run(run_dir).n_draws
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert np.isfinite(float(_stat(az.loo(back), "elpd_loo", "elpd")))
+
+
+def test_arviz_1_layout_is_a_datatree(run_dir, monkeypatch, tmp_path):
+    pytest.importorskip("arviz")
+    xr = pytest.importorskip("xarray")
+    if not hasattr(xr, "DataTree"):
+        pytest.skip("xarray without DataTree (arviz >= 1 needs it)")
+    monkeypatch.setattr(export, "_arviz_major", lambda az: 1)
+    tree = export.to_arviz(load_run(run_dir), pointwise_draws=10)
+    assert isinstance(tree, xr.DataTree)
+    assert {"posterior", "log_likelihood", "sample_stats", "constant_data"} <= set(tree.children)
+    assert tree.attrs["inference_library"] == "pbicrl"
+    assert tree["log_likelihood"]["preferences"].dims == ("chain", "draw", "trajectory")
+    pytest.importorskip("h5netcdf")
+    path = export.to_netcdf(load_run(run_dir), tmp_path / "tree.nc", pointwise_draws=10)
+    back = xr.open_datatree(path, engine="h5netcdf")
+    assert back["log_likelihood"]["preferences"].shape[1] == 10
