@@ -112,3 +112,76 @@ def test_power_tempers_the_log_likelihood():
         PreferenceLikelihood.from_dataset(ds, power=1.5)
     with pytest.raises(ValueError, match="power"):
         PreferenceLikelihood.from_dataset(ds, power="half")
+
+
+def _softplus_sum(a, rows, cols, margin):
+    """The per-pair oracle: -sum softplus(a_j + m - a_i), summed exactly (math.fsum)."""
+    z = a[cols][None, :] + margin - a[rows][:, None]
+    return -math.fsum((np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z)))).ravel())
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_wide_spread_blocks_match_per_pair_softplus(seed):
+    """Blocks spreading over more than _SPREAD nats take the sorted/banded path: exact to float precision."""
+    from pbicrl import _kernels
+
+    rng = np.random.default_rng(seed)
+    nr, nc = (int(v) for v in rng.integers(1, 900, 2))
+    spread = 10 ** rng.uniform(np.log10(700), 6)
+    kind = seed % 3
+    if kind == 0:  # uniform over the spread
+        a = rng.uniform(0, spread, nr + nc)
+    elif kind == 1:  # a few tight clusters far apart, with ties
+        centres = rng.uniform(0, spread, 4)
+        a = np.round(centres[rng.integers(0, 4, nr + nc)] + rng.normal(size=nr + nc) * 5, 1)
+    else:  # mostly close pairs plus outliers
+        a = rng.normal(size=nr + nc) * 20
+        a[rng.integers(0, nr + nc, 3)] += spread * np.array([1, -1, 0.5])
+    a += rng.uniform(-1e5, 1e5)  # an offset: the path must not depend on absolute returns
+    rows, cols = np.arange(nr), nr + np.arange(nc)
+    margin = float(rng.uniform(-50, 50))
+    expect = _softplus_sum(a, rows, cols, margin)
+    got = _kernels._block_wide(a, rows, cols, margin)
+    assert np.ptp(a) > _kernels._SPREAD
+    assert got == pytest.approx(expect, rel=1e-12, abs=nr * nc * 4e-16)
+    # the old per-pair loop, for comparison: its long sequential sum drifts a little more (seen: 1.03e-12)
+    assert _kernels._block_softplus(a, rows, cols, margin) == pytest.approx(expect, rel=1e-11, abs=nr * nc * 4e-16)
+    # and through the likelihood (blocks of three groups, each spreading wide)
+    group = rng.integers(1, 4, nr + nc)
+    group[:3] = [1, 2, 3]
+    p = Preferences.from_groups(group, [margin, 2.0 * abs(margin)] if seed % 2 else None)
+    i, j, m = p.to_pair_list()
+    z = a[j] + m - a[i]
+    lik = PreferenceLikelihood(a[:, None], p, np.ones(1))
+    total = -math.fsum(np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z))))
+    assert lik.from_scaled_returns(a) == pytest.approx(total, rel=1e-12, abs=z.size * 4e-16)
+
+
+def test_wide_spread_path_handles_chunks_and_nan():
+    from pbicrl import _kernels
+
+    rng = np.random.default_rng(11)
+    a = np.concatenate([rng.normal(size=1500) * 3, [1e4, -1e4]])  # > _CHUNK close columns in one band
+    rows, cols = np.arange(0, 1502, 3), np.setdiff1d(np.arange(1502), np.arange(0, 1502, 3))
+    expect = _softplus_sum(a, rows, cols, 0.25)
+    assert _kernels._block_wide(a, rows, cols, 0.25) == pytest.approx(expect, rel=1e-12)
+    b = a.copy()
+    b[cols[5]] = np.nan
+    scratch = [np.empty(cols.size) for _ in range(3)] + [np.empty(a.size) for _ in range(2)]
+    assert np.isnan(_kernels.block_loglik(b, rows, cols, 0.25, *scratch))
+
+
+@pytest.mark.parametrize("gap", [5.0, 30.0, 45.0, 300.0])
+def test_wide_spread_blocks_keep_relative_precision_when_pairs_are_decided(gap):
+    """Nearly every pair decided (the log-likelihood is a sum of tiny terms): still exact relative to its size."""
+    from pbicrl import _kernels
+
+    rng = np.random.default_rng(int(gap))
+    rows_a = gap + rng.uniform(0, 2000, 400)  # the preferred side, at least `gap` nats above every column
+    cols_a = -rng.uniform(0, 1000, 300)
+    a = np.concatenate([rows_a, cols_a])
+    rows, cols = np.arange(400), 400 + np.arange(300)
+    z = a[cols][None, :] - a[rows][:, None]
+    expect = -math.fsum(np.log1p(np.exp(z)).ravel())
+    assert expect < 0.0
+    assert _kernels._block_wide(a, rows, cols, 0.0) == pytest.approx(expect, rel=1e-13)

@@ -60,3 +60,32 @@ def test_with_margins_keeps_pairs():
     m = p.pair_margins
     expect = np.where((g[p.pair_i] == 1) & (g[p.pair_j] == 3), 3.0, np.where(g[p.pair_i] == 1, 1.0, 2.0))
     np.testing.assert_allclose(m, expect)
+
+
+def test_groups_are_kept_for_the_grouped_likelihood():
+    g = np.array([5, 2, 9, 2, 5, 9, 9])
+    p = Preferences.from_groups(g, [0.5, 0.25])
+    assert p.n_groups == 3
+    members = [p.group_items[p.group_offsets[k]:p.group_offsets[k + 1]].tolist() for k in range(3)]
+    assert members == [[1, 3], [0, 4], [2, 5, 6]]  # best (lowest label) first
+    np.testing.assert_array_equal(p.group_margins, Margins.from_gaps([0.5, 0.25]).matrix)
+    sampled = Preferences.from_groups(g, protocol=4, seed=0)
+    assert sampled.n_groups == 3 and sampled.protocol != "all"
+    assert Preferences.from_pairs([[0, 1]], 3).n_groups == 0
+    p2 = p.with_margins(g, [1.0, 2.0])
+    np.testing.assert_array_equal(p2.group_margins, Margins.from_gaps([1.0, 2.0]).matrix)
+    np.testing.assert_array_equal(p2.group_items, p.group_items)
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("group_offsets", [0, 2, 2, 7], "at least one trajectory"),
+    ("group_offsets", [0, 2, 9], "rise from 0"),
+    ("group_items", [0, 1, 1, 3, 4, 5, 6], "distinct indices"),
+    ("group_margins", np.zeros((2, 2)), "3 x 3"),
+])
+def test_bad_group_structure_is_rejected(field, value, message):
+    p = Preferences.from_groups([1, 1, 2, 2, 3, 3, 3])
+    parts = {f: getattr(p, f) for f in ("group_items", "group_offsets", "group_margins")} | {field: value}
+    with pytest.raises(PreferenceError, match=message):
+        Preferences(p.n_trajectories, p.block_rows, p.block_row_offsets, p.block_cols, p.block_col_offsets,
+                    p.block_margins, p.pair_i, p.pair_j, p.pair_margins, protocol=p.protocol, **parts)

@@ -1,6 +1,7 @@
-"""Compiled (Numba) kernels: the margin-respecting Bradley-Terry log-likelihood.
+"""Compiled (Numba) kernels: the margin-respecting Bradley-Terry log-likelihood (paper Eq. 7) and the exact
+grouped Plackett-Luce log-likelihood, with :func:`loglik` dispatching between them for the sampler.
 
-Each pair contributes :math:`\\log\\sigma(a_i - m - a_j) = -\\mathrm{softplus}(z)`, with
+**Pairwise.** Each pair contributes :math:`\\log\\sigma(a_i - m - a_j) = -\\mathrm{softplus}(z)`, with
 :math:`z = a_j + m - a_i` and :math:`a_i = \\beta \\bar r(\\tau_i)` the scaled length-normalised return.
 Write :math:`\\mathrm{softplus}(z) = \\max(z, 0) + \\log(1 + e^{-|z|})`. Over a dense block (all rows ``i`` x
 all cols ``j``) the exponential factorises: with a block centre :math:`c`,
@@ -8,10 +9,14 @@ all cols ``j``) the exponential factorises: with a block centre :math:`c`,
 :math:`P_i = e^{a_i - m - c}` and :math:`Q_j = e^{a_j - c}`. The exponentials become per-trajectory work;
 per pair only a select, a multiply and an add remain, which vectorise. The row sum of
 :math:`\\log(1 + t)` (:math:`0 \\le t \\le 1`) is one ``log`` of a running product, flushed every
-``_CHUNK`` factors so it cannot overflow (each factor is at most 2). When the block's returns spread over
-more than ``_SPREAD`` nats (or a margin exceeds ``_MMAX``), :math:`P` or :math:`Q` could overflow, first each block
-gets its own centre, and a block that still spreads too far falls back to an exact
-per-pair softplus: the result stays finite and correct for return differences of 1e6 and beyond.
+``_CHUNK`` factors so it cannot overflow (each factor is at most 2). When the returns spread over more than
+``_SPREAD`` nats (or a margin exceeds ``_MMAX``), :math:`P` or :math:`Q` could overflow: first each block gets its
+own centre; a block that still spreads too far is evaluated over its sorted returns (:func:`_block_wide`:
+distant pairs from prefix sums, close ones by the same separable product within bands), exact to float
+precision for return differences of 1e6 and beyond at a cost close to the narrow path's. A narrow block with a
+large margin keeps the original per-pair loop (:func:`_block_softplus`).
+
+**Grouped.** :func:`grouped_loglik`; the method is described in the comment that opens its section below.
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["block_loglik", "pairs_loglik", "total_loglik", "softplus"]
+__all__ = ["block_loglik", "pairs_loglik", "total_loglik", "softplus", "grouped_loglik", "group_term",
+           "loglik", "KIND_PAIRWISE", "KIND_GROUPED"]
 
 _CHUNK = 512  # 2**512 < max double: a flushed product of (1 + t <= 2) factors never overflows
 _SPREAD = 600.0  # returns within +-300 of the centre and margins within +-300: every factor in e^{+-600}
@@ -82,6 +88,156 @@ def _block_separable(a: np.ndarray, E: np.ndarray, Einv: np.ndarray, rows: np.nd
     return total
 
 
+_NEAR = 37.5  # |z| > _NEAR: softplus(z) is z (z > 0; e^{-z} < 2^-54 z) or e^z (z < 0) to float precision
+_BAND = 64.0  # width of a band of sorted columns; with its own centre every factor stays within e^{+-(_NEAR + _BAND)}
+_FAR = 745.0  # z > _FAR: summed from prefix sums (cancellation ~eps * spread / _FAR); z < -_FAR: e^z underflows
+
+
+@njit(cache=True, error_model="numpy")
+def _block_softplus(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: float) -> float:
+    """Per-pair ``-softplus`` sum: the original fallback (still used for large margins on a narrow block)."""
+    total = 0.0
+    for r in range(rows.size):
+        ai = a[rows[r]] - margin
+        for j in range(cols.size):
+            total += softplus(a[cols[j]] - ai)
+    return -total
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FM)
+def _band_run(y: np.ndarray, Q: np.ndarray, Qinv: np.ndarray, j0: int, j1: int, x: float, P: float,
+              Pinv: float) -> tuple[float, float, float]:
+    """Over ``j0 <= j < j1`` (at most ``_CHUNK``): ``sum max(y_j - x, 0)``, and :math:`\\log(1 + t_j)`,
+    :math:`t_j = e^{-|y_j - x|}`, split into a series sum for small :math:`t_j` and a product of the others.
+
+    The series (five terms, relative error below 2e-16 for :math:`t < 10^{-3}`) keeps tiny terms that
+    :math:`1 + t` would round away, so a block whose pairs are nearly all decided keeps its relative precision.
+    """
+    pos = 0.0
+    ser = 0.0
+    rp = 1.0
+    for j in range(j0, j1):
+        pos += max(y[j] - x, 0.0)
+        t = min(P * Qinv[j], Pinv * Q[j])
+        small = t < 1e-3
+        ser += t * (1.0 - t * (0.5 - t * (1.0 / 3.0 - t * (0.25 - t * 0.2)))) if small else 0.0
+        rp *= 1.0 if small else 1.0 + t
+    return pos, ser, rp
+
+
+@njit(cache=True, error_model="numpy")
+def _block_wide(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: float) -> float:
+    """Exact block sum for returns spread over more than ``_SPREAD`` nats, in O((R + C) log C + close pairs).
+
+    With :math:`x_i = a_i - m` and the columns' returns :math:`y` sorted and cut into bands at most ``_BAND`` nats
+    wide, each pair contributes :math:`\\mathrm{softplus}(z)`, :math:`z = y_j - x_i`. For row :math:`i`:
+
+    * bands entirely more than ``_NEAR`` below :math:`x_i` contribute :math:`\\sum_j e^{y_j - x_i}` (each term below
+      :math:`2^{-54}`), one exponential per band from the band's :math:`\\sum_j e^{y_j - c_b}`, down to underflow;
+    * bands entirely more than ``_NEAR`` above :math:`x_i` contribute :math:`\\sum_j (y_j - x_i)`, from the band's
+      sum about its own centre (no cancellation), up to the first band beyond :math:`x_i +` ``_FAR``; everything
+      beyond is one difference of double-double prefix sums (pairs that far apart give exactly :math:`z`);
+    * the other bands (at most three) hold the pairs with :math:`|z| \\le` ``_NEAR``: the narrow path's separable
+      exponentials with the band's own centre (no factor can overflow), :math:`\\log(1 + t)` by a short series for
+      small :math:`t` and one logarithm per product of the others.
+
+    Every pair is exact to a few units of 1e-16 relative to its own size (the narrow path rounds terms under
+    :math:`2^{-53}` away), so blocks of nearly decided pairs keep their relative precision too.
+    """
+    nr = rows.size
+    nc = cols.size
+    y = np.empty(nc)
+    for j in range(nc):
+        y[j] = a[cols[j]]
+    y.sort()
+    # Prefix sums of y - c0 as double-double (TwoSum): the far-side sums then only pay one final rounding.
+    c0 = 0.5 * (y[0] + y[nc - 1])
+    ph = np.empty(nc + 1)
+    pl = np.empty(nc + 1)
+    ph[0] = 0.0
+    pl[0] = 0.0
+    for j in range(nc):
+        d = y[j] - c0
+        t = ph[j] + d
+        bb = t - ph[j]
+        pl[j + 1] = pl[j] + ((ph[j] - (t - bb)) + (d - bb))
+        ph[j + 1] = t
+    # Bands: greedy runs of at most _BAND nats, each with its centre, local sum and scaled exponentials.
+    bstart = np.empty(nc + 1, dtype=np.int64)
+    nb = 0
+    j = 0
+    while j < nc:
+        bstart[nb] = j
+        nb += 1
+        first = y[j]
+        j += 1
+        while j < nc and y[j] - first <= _BAND:
+            j += 1
+    bstart[nb] = nc
+    bmin = np.empty(nb)
+    bmax = np.empty(nb)
+    bcen = np.empty(nb)
+    bsum = np.empty(nb)
+    bexp = np.empty(nb)
+    Q = np.empty(nc)
+    Qinv = np.empty(nc)
+    for b in range(nb):
+        j0 = bstart[b]
+        j1 = bstart[b + 1]
+        bmin[b] = y[j0]
+        bmax[b] = y[j1 - 1]
+        cb = 0.5 * (y[j0] + y[j1 - 1])
+        bcen[b] = cb
+        acc = 0.0
+        eacc = 0.0
+        for k in range(j0, j1):
+            acc += y[k] - cb
+            Q[k] = math.exp(y[k] - cb)
+            Qinv[k] = 1.0 / Q[k]
+            eacc += Q[k]
+        bsum[b] = acc
+        bexp[b] = eacc
+    pos = 0.0
+    ser = 0.0
+    log_total = 0.0
+    prod = 1.0
+    count = 0
+    for r in range(nr):
+        x = a[rows[r]] - margin
+        b = np.searchsorted(bmax, x - _NEAR)  # first band that reaches within _NEAR below x
+        bfar = np.searchsorted(bmin, x + _FAR, side="right")  # first band entirely beyond _FAR above x
+        # bands entirely below: log(1 + e^z) = e^z to 3e-17 relative, e^{c_b - x} sum_j Q_j per band, until
+        # the terms underflow (what 1 + t rounds away on the narrow path, kept here: see _band_run)
+        lowb = b - 1
+        while lowb >= 0 and bmax[lowb] - x > -_FAR:
+            ser += math.exp(bcen[lowb] - x) * bexp[lowb]
+            lowb -= 1
+        while b < bfar:
+            j0 = bstart[b]
+            j1 = bstart[b + 1]
+            if bmin[b] - x > _NEAR:
+                pos += bsum[b] + (j1 - j0) * (bcen[b] - x)
+            else:
+                P = math.exp(x - bcen[b])
+                Pinv = 1.0 / P
+                for k0 in range(j0, j1, _CHUNK):
+                    k1 = min(k0 + _CHUNK, j1)
+                    if count + (k1 - k0) > _CHUNK:  # flush before the running product could overflow
+                        log_total += math.log(prod)
+                        prod = 1.0
+                        count = 0
+                    dp, ds, rp = _band_run(y, Q, Qinv, k0, k1, x, P, Pinv)
+                    pos += dp
+                    ser += ds
+                    prod *= rp
+                    count += k1 - k0
+            b += 1
+        jf = bstart[bfar]
+        if jf < nc:
+            pos += ((ph[nc] - ph[jf]) + (pl[nc] - pl[jf])) - (nc - jf) * (x - c0)
+    return -(pos + (ser + (log_total + math.log(prod))))
+
+
 @njit(cache=True, error_model="numpy")
 def block_loglik(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: float,
                  b: np.ndarray, Q: np.ndarray, Qinv: np.ndarray, E: np.ndarray, Einv: np.ndarray) -> float:
@@ -106,12 +262,10 @@ def block_loglik(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: floa
     if not (hi - lo <= _SPREAD and abs(margin) <= _MMAX):
         if hi - lo != hi - lo:  # NaN in the returns
             return np.nan
-        total = 0.0
-        for r in range(nr):
-            ai = a[rows[r]] - margin
-            for j in range(nc):
-                total += softplus(a[cols[j]] - ai)
-        return -total
+        if hi - lo <= _SPREAD or hi - lo == np.inf:
+            # only the margin is large (rare; this result stays as it always was, bit for bit), or infinite returns
+            return _block_softplus(a, rows, cols, margin)
+        return _block_wide(a, rows, cols, margin)
     c = 0.5 * (lo + hi)
     for j in range(nc):
         k = cols[j]
@@ -168,3 +322,428 @@ def total_loglik(a: np.ndarray, brows: np.ndarray, broff: np.ndarray, bcols: np.
     if pi.size:
         total += pairs_loglik(a, pi, pj, pm)
     return total
+
+
+# ================================================================================== grouped Plackett-Luce
+#
+# Groups G_1 (best) ... G_K. With lambda_i = exp(a_i), the probability that every item of G_k ranks above every
+# item of the lower groups R_k under a Plackett-Luce model (an exponential race: item i arrives at E_i ~ Exp(lambda_i),
+# earlier is better) is P_k = int_0^inf e^{-t} prod_{i in G_k} (1 - exp(-t lambda_i / Lambda_k)) dt, and the
+# ranking of the groups has probability prod_k P_k (memorylessness: the race among R_k restarts). Margins weight
+# the lower items, Lambda_k = sum_{j in R_k} lambda_j exp(m_{k,l(j)}): two singleton groups give exactly the
+# pairwise term log sigma(a_i - m - a_j) of Eq. 7.
+#
+# In s = log t, with x_i = a_i - log Lambda_k, v_i = e^{s + x_i} and L(u) = log(1 - exp(-e^u)):
+#   direct form      g(s) = s - e^s + h(s),               h(s) = sum_i L(s + x_i),        P = int e^{g}
+#   complement form  c(s) = s - e^s + log(1 - e^{h(s)}),                                   1 - P = int e^{c}
+# g is concave (L'(u) = v / (e^v - 1) decreases), with its mode in (0, log(n + 1)]; c was unimodal on thousands
+# of random and adversarial groups (the density form of 1 - P, which has a shorter tail, was not), with its
+# mode in [min(-max x - 3, -1/2), 0]. The direct form gives log P to relative precision unless P is close to 1;
+# the complement gives 1 - P to relative precision, hence log P = log1p(-(1 - P)) for near-certain orderings.
+# A Laplace estimate at the direct mode picks the form. Each integral: safeguarded Newton for the mode, sigma
+# from the curvature there, and the trapezoid rule in u with s = s0 + sigma m(u), where
+# m(u) = (1 - beta) u + beta (1 - e^{-gamma u}) / gamma stretches the slowly decaying left tail (slope n + 1, or
+# 1 for the complement) exponentially. Nodes go outwards until the integrand is e^{-_G_DROP} below the mode;
+# the rule is compared with the one on every other node (twice the step) and halved until two levels agree to
+# _G_ACCEPT: the rule converges geometrically, but the step it needs depends on how sharp the edges of the
+# integrand are (an edge of many near-equal items is much sharper than the curvature at the mode says).
+# Constants chosen by measurement: worst relative error of log P_k 7e-15 over 3,757 groups of 2 .. 10^4 items
+# (returns spread 0.01 .. 1e6, clusters, near-certain to near-impossible orders) against the same integrals with
+# 10x finer steps, and within 1e-10 of scipy's adaptive quadrature of the defining integral (the tests).
+# Typical cost: 4-6 Newton steps and ~36 nodes, each one exp (or expm1) per item: O(n Q).
+
+KIND_PAIRWISE = 0  # PreferenceLikelihood(kind="pairwise"): paper Eq. 7 over blocks and explicit pairs
+KIND_GROUPED = 1  # PreferenceLikelihood(kind="grouped"): grouped Plackett-Luce
+
+_LN2 = math.log(2.0)
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+_G_TINY = -25.0  # u below: v < 1.4e-11 and L(u) = u - v/2 to 1e-22
+_G_HUGE = 6.62  # u above: v > 750, exp(-v) underflows and the factor is exactly 1
+_G_CLASS = 700.0  # |x_i + s0| above: the item is in one of those two regimes on the whole window
+_G_WINDOW = 600.0  # no node lies further than this from the mode (the integrand is e^{-hundreds} there)
+_G_DROP = 36.0  # nodes until the integrand is e^{-36} (1e-16) below its mode
+_G_EDROP = math.exp(-_G_DROP)
+_G_STEP = 0.45  # level-0 trapezoid step / sigma (checked against twice the step, halved until two agree)
+_G_STEP_MAX = 0.35  # level-0 step cap in s: the integrand's complex singularities sit ~pi/2 off the real axis
+_G_ACCEPT = 1e-9  # two levels agreeing to this leave an error far below it (1e-14 measured)
+_G_MAX_LEVELS = 6
+_G_MAP_DIRECT = (0.15, 0.3)  # (beta, gamma) of the tail stretch
+_G_MAP_COMP = (0.1, 0.4)
+_G_SWITCH = math.log(0.7)  # Laplace estimate of log P above this: integrate the complement
+_G_MAX_NODES = 5000  # per side, a guard only (typical: 30 .. 60 nodes in all)
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_item(u: float) -> tuple[float, float, float]:
+    """``(L, L', L'')`` at ``u``: :math:`L(u) = \\log(1 - e^{-e^u})`, :math:`L' = v/(e^v - 1)`, :math:`v = e^u`."""
+    if u < _G_TINY:
+        v = math.exp(u)
+        return u - 0.5 * v, 1.0 - 0.5 * v, -0.5 * v
+    if u > _G_HUGE:
+        return 0.0, 0.0, 0.0
+    v = math.exp(u)
+    if v <= _LN2:
+        om = -math.expm1(-v)  # 1 - e^{-v} without cancellation
+        ev = 1.0 - om
+        lg = math.log(om)
+    else:
+        ev = math.exp(-v)
+        om = 1.0 - ev
+        lg = math.log1p(-ev)
+    phi = v * ev / om
+    return lg, phi, phi * (1.0 - v / om)
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_slopes(s: float, x: np.ndarray) -> tuple[float, float]:
+    """:math:`h'(s)`, :math:`h''(s)` (no logarithms: what Newton needs for the direct form)."""
+    h1 = 0.0
+    h2 = 0.0
+    for i in range(x.size):
+        u = s + x[i]
+        if u < _G_TINY:
+            v = math.exp(u)
+            h1 += 1.0 - 0.5 * v
+            h2 -= 0.5 * v
+        elif u <= _G_HUGE:
+            v = math.exp(u)
+            if v <= _LN2:
+                om = -math.expm1(-v)
+                ev = 1.0 - om
+            else:
+                ev = math.exp(-v)
+                om = 1.0 - ev
+            phi = v * ev / om
+            h1 += phi
+            h2 += phi * (1.0 - v / om)
+    return h1, h2
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_sums(s: float, x: np.ndarray) -> tuple[float, float, float]:
+    """:math:`h(s)`, :math:`h'(s)`, :math:`h''(s)`."""
+    h = 0.0
+    h1 = 0.0
+    h2 = 0.0
+    for i in range(x.size):
+        lg, p, q = _pl_item(s + x[i])
+        h += lg
+        h1 += p
+        h2 += q
+    return h, h1, h2
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_comp_derivs(s: float, x: np.ndarray) -> tuple[float, float, float]:
+    """``(c, c', c'')`` of the complement form at ``s`` (``c = -inf`` once :math:`h` rounds to 0)."""
+    h, h1, h2 = _pl_sums(s, x)
+    es = math.exp(s)
+    if not h < 0.0:
+        return -np.inf, -np.inf, -1.0
+    w = -h
+    E = math.expm1(w)  # e^{-h} - 1 > 0
+    d1 = 1.0 - es - h1 / E
+    # e^{w} / E^2 = 1 / (E (1 - e^{-w})): no overflow when w is large
+    d2 = -es - h2 / E - h1 * h1 / (E * -math.expm1(-w))
+    return s - es + math.log(-math.expm1(h)), d1, d2
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_mode(comp: bool, x: np.ndarray) -> tuple[float, float, float]:
+    """Mode ``s0`` of the direct (``comp`` False) or complement form, its value and second derivative.
+
+    Newton on the derivative, safeguarded by bisection inside a bracket where the derivative changes sign:
+    direct :math:`(-1, \\log(n+1) + 1)`, complement :math:`(\\min(-\\max x - 3, -1/2), 0)`.
+    """
+    n = x.size
+    if comp:
+        xmax = -np.inf
+        xmin = np.inf
+        for i in range(n):
+            xmax = max(xmax, x[i])
+            xmin = min(xmin, x[i])
+        lo = min(-xmax - 3.0, -0.5)
+        hi = 0.0
+        s = min(max(-xmin, lo), hi)  # where the slowest item's race is decided
+    else:
+        lo = -1.0
+        hi = math.log(n + 1.0) + 1.0
+        s = 0.5 * math.log(n + 1.0)
+    f = 0.0
+    d2 = -1.0
+    for _ in range(200):
+        if comp:
+            f, d1, d2 = _pl_comp_derivs(s, x)
+        else:
+            h1, h2 = _pl_slopes(s, x)
+            es = math.exp(s)
+            d1 = 1.0 - es + h1
+            d2 = -es + h2
+        if d1 > 0.0:
+            lo = s
+        else:
+            hi = s
+        newton = d2 < 0.0 and d1 == d1
+        sn = s - d1 / d2 if newton else 0.5 * (lo + hi)
+        if not (lo < sn < hi):
+            newton = False
+            sn = 0.5 * (lo + hi)
+        # converged: a Newton step below 1e-3 sigma (bisection steps never count: flat tails fool the scale)
+        if (newton and abs(sn - s) * math.sqrt(-d2) < 1e-3) or hi - lo <= 1e-12 * (1.0 + abs(s)):
+            break
+        s = sn
+    if not comp:
+        f = s - math.exp(s) + _pl_sums(s, x)[0]
+    return s, f, d2
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_prepare(x: np.ndarray, s0: float, u0: np.ndarray, b: np.ndarray) -> tuple[int, int, float]:
+    """Split the items for node evaluations around ``s0``: ``(n_mid, n_low, sum_low)``.
+
+    Items with :math:`x_i + s_0 < -\\_G\\_CLASS` have :math:`L = u` exactly on the whole window and are summed as
+    ``n_low * delta + sum_low``; items above ``_G_CLASS`` have :math:`L = 0`. The others get
+    ``u0 = x_i + s0`` and ``b = e^{u0}``, so that a node at ``s0 + delta`` needs :math:`v = b e^{\\delta}` (one
+    multiply) instead of an exponential per item.
+    """
+    n_mid = 0
+    n_low = 0
+    sum_low = 0.0
+    for i in range(x.size):
+        u = x[i] + s0
+        if u < -_G_CLASS:
+            n_low += 1
+            sum_low += u
+        elif u <= _G_CLASS:
+            u0[n_mid] = u
+            b[n_mid] = math.exp(u)
+            n_mid += 1
+    return n_mid, n_low, sum_low
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_h_at(delta: float, rho: float, u0: np.ndarray, b: np.ndarray, n_mid: int, n_low: int,
+             sum_low: float) -> float:
+    """:math:`h(s_0 + \\delta)` with ``rho = e^delta``: one ``exp``/``expm1`` per item, logs taken per product.
+
+    Factors :math:`1 - e^{-v}` are multiplied (flushed to a log before underflow); those within 1e-3 of 1 are
+    summed as a series of :math:`\\log(1 - e^{-v})` instead, so that a tiny :math:`h` (near-certain orderings)
+    keeps its relative precision for the complement form.
+    """
+    h = n_low * delta + sum_low
+    prod = 1.0
+    lacc = 0.0
+    ser = 0.0
+    for k in range(n_mid):
+        u = u0[k] + delta
+        if u < _G_TINY:
+            h += u - 0.5 * (b[k] * rho)
+        elif u <= _G_HUGE:
+            v = b[k] * rho
+            if v <= _LN2:
+                prod *= -math.expm1(-v)
+            else:
+                ev = math.exp(-v)
+                if ev < 1e-3:
+                    ser -= ev * (1.0 + ev * (0.5 + ev * (1.0 / 3.0 + ev * (0.25 + ev * 0.2))))
+                else:
+                    prod *= 1.0 - ev
+            if prod < 1e-250:
+                lacc += math.log(prod)
+                prod = 1.0
+    return h + ser + (lacc + math.log(prod))
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_node(comp: bool, u: float, s0: float, sig: float, f0: float, beta: float, gamma: float, u0: np.ndarray,
+             b: np.ndarray, n_mid: int, n_low: int, sum_low: float) -> float:
+    """Log of the mapped integrand at ``u`` relative to the mode (``-inf`` beyond the window or the last edge)."""
+    eg = math.exp(-gamma * u)
+    delta = sig * ((1.0 - beta) * u + beta * (1.0 - eg) / gamma)
+    if abs(delta) > _G_WINDOW:
+        return -np.inf
+    hh = _pl_h_at(delta, math.exp(delta), u0, b, n_mid, n_low, sum_low)
+    s = s0 + delta
+    if comp:
+        if not hh < 0.0:
+            return -np.inf  # 1 - e^h rounds to 0
+        val = s - math.exp(s) + math.log(-math.expm1(hh))
+    else:
+        val = s - math.exp(s) + hh
+    return val - f0 + math.log((1.0 - beta) + beta * eg)
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_integral(comp: bool, x: np.ndarray, s0: float, sig: float, beta: float, gamma: float, step: float,
+                 step_max: float, accept: float, u0: np.ndarray, b: np.ndarray) -> float:
+    """Log of the direct (``comp`` False) or complement integral: mapped trapezoid rule around ``s0``, halving.
+
+    Level 0 walks outwards with step ``H`` until the integrand is ``_G_DROP`` below the mode and is checked
+    against the rule with step ``2H`` on every other node; each further level adds the midpoints. The rule
+    converges geometrically (the error roughly squares when the step halves), so once two levels agree to
+    ``accept`` the finer one is accurate to about its square.
+    """
+    n_mid, n_low, sum_low = _pl_prepare(x, s0, u0, b)
+    h0 = _pl_h_at(0.0, 1.0, u0, b, n_mid, n_low, sum_low)
+    if comp:
+        if not h0 < 0.0:
+            return -np.inf
+        f0 = s0 - math.exp(s0) + math.log(-math.expm1(h0))
+    else:
+        f0 = s0 - math.exp(s0) + h0
+    H = min(step, step_max / sig)  # level-0 step in u (units of sigma)
+    acc = 1.0  # the node at the mode: e^{f0 - f0} m'(0), m'(0) = 1
+    even = 1.0  # the nodes of the rule with step 2H
+    kr = 0
+    kl = 0
+    for side in range(2):
+        direction = 1.0 if side == 0 else -1.0
+        k = 1
+        while k <= _G_MAX_NODES:
+            e = math.exp(_pl_node(comp, direction * k * H, s0, sig, f0, beta, gamma, u0, b, n_mid, n_low, sum_low))
+            acc += e
+            if k % 2 == 0:
+                even += e
+            if e < _G_EDROP:
+                break
+            k += 1
+        if side == 0:
+            kr = k
+        else:
+            kl = k
+    prev = H * acc
+    if abs(prev - 2.0 * H * even) <= accept * prev:
+        return f0 + math.log(sig * prev)
+    h = H
+    n_new = kl + kr
+    for _ in range(_G_MAX_LEVELS):
+        h *= 0.5
+        for i in range(n_new):
+            acc += math.exp(_pl_node(comp, -kl * H + (2 * i + 1) * h, s0, sig, f0, beta, gamma, u0, b,
+                                     n_mid, n_low, sum_low))
+        cur = h * acc
+        if abs(cur - prev) <= accept * cur:
+            prev = cur
+            break
+        prev = cur
+        n_new *= 2
+    return f0 + math.log(sig * prev)
+
+
+@njit(cache=True, error_model="numpy")
+def _group_term_finite(x: np.ndarray, buf: np.ndarray) -> float:
+    """:func:`group_term` for finite ``x``."""
+    n = x.size
+    if n == 0:
+        return 0.0
+    if n == 1:  # closed form: log sigma(x), the Bradley-Terry pair
+        z = -x[0]
+        return -(max(z, 0.0) + math.log1p(math.exp(-abs(z))))
+    u0 = buf[0]
+    b = buf[1]
+    s0, g0, g2 = _pl_mode(False, x)
+    sig = 1.0 / math.sqrt(-g2)
+    if g0 + math.log(sig) + _LOG_SQRT_2PI < _G_SWITCH:  # Laplace estimate: P not close to 1
+        lp = _pl_integral(False, x, s0, sig, _G_MAP_DIRECT[0], _G_MAP_DIRECT[1], _G_STEP, _G_STEP_MAX,
+                          _G_ACCEPT, u0, b)
+        if lp <= math.log(0.9):
+            return lp
+    sc, c0, c2 = _pl_mode(True, x)
+    if c0 == -np.inf:
+        return 0.0  # 1 - P underflows: log P = -(1 - P) rounds to 0
+    sigc = 1.0 / math.sqrt(-c2) if c2 < 0.0 else 1.0
+    lq = _pl_integral(True, x, sc, sigc, _G_MAP_COMP[0], _G_MAP_COMP[1], _G_STEP, _G_STEP_MAX, _G_ACCEPT,
+                      u0, b)
+    if lq <= math.log(0.5):
+        return math.log1p(-math.exp(lq))
+    return _pl_integral(False, x, s0, sig, _G_MAP_DIRECT[0], _G_MAP_DIRECT[1], _G_STEP, _G_STEP_MAX,
+                        _G_ACCEPT, u0, b)
+
+
+@njit(cache=True, error_model="numpy")
+def group_term(x: np.ndarray, buf: np.ndarray) -> float:
+    """:math:`\\log P_k` for one group with :math:`x_i = a_i - \\log\\Lambda_k` (see the section comment).
+
+    ``buf`` is scratch of shape (2, >= len(x)). Relative precision ~1e-14 (measured, see the section comment) for
+    any finite ``x``, up to the conditioning of the inputs themselves (a relative change of :math:`\\log P_k` of about
+    :math:`|x| \\epsilon` when :math:`P_k` is near 1); finite for finite input, ``-inf`` if an item has
+    ``x = -inf``, NaN if any ``x`` is NaN.
+    """
+    n_inf = 0
+    for i in range(x.size):
+        if x[i] != x[i]:
+            return np.nan
+        if x[i] == -np.inf:
+            return -np.inf
+        if x[i] == np.inf:
+            n_inf += 1
+    if n_inf == 0:
+        return _group_term_finite(x, buf)
+    # an item infinitely far above the lower groups always ranks above them: drop it
+    y = np.empty(x.size - n_inf)
+    k = 0
+    for i in range(x.size):
+        if x[i] != np.inf:
+            y[k] = x[i]
+            k += 1
+    return _group_term_finite(y, buf)
+
+
+@njit(cache=True, error_model="numpy")
+def _logsumexp_at(a: np.ndarray, idx: np.ndarray) -> float:
+    m = -np.inf
+    for i in range(idx.size):
+        m = max(m, a[idx[i]])
+    if m == -np.inf or m == np.inf:
+        return m
+    acc = 0.0
+    for i in range(idx.size):
+        acc += math.exp(a[idx[i]] - m)
+    return m + math.log(acc)
+
+
+@njit(cache=True, error_model="numpy")
+def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.ndarray, gbuf: np.ndarray) -> float:
+    """Grouped Plackett-Luce log-likelihood :math:`\\sum_{k<K} \\log P_k` for scaled returns ``a``.
+
+    ``gitems[goff[k]:goff[k+1]]`` are the trajectories of group ``k`` (best first), ``gmarg`` the K x K margins
+    :math:`m_{k\\ell}` (upper triangle), ``gbuf`` scratch of shape (4, >= max(largest group, K)).
+    :math:`\\log\\Lambda_k = \\mathrm{logsumexp}_{\\ell > k}(m_{k\\ell} + \\mathrm{logsumexp}_{j \\in G_\\ell} a_j)`:
+    O(N + K^2) for all terms, then O(n_k Q) per group.
+    """
+    K = goff.size - 1
+    lse = gbuf[3]
+    for l in range(1, K):
+        lse[l] = _logsumexp_at(a, gitems[goff[l]:goff[l + 1]])
+    total = 0.0
+    x = gbuf[2]
+    for k in range(K - 1):
+        m = -np.inf
+        for l in range(k + 1, K):
+            m = max(m, lse[l] + gmarg[k, l])
+        if m == -np.inf or m == np.inf or m != m:
+            log_lam = m if m == m else np.nan
+        else:
+            acc = 0.0
+            for l in range(k + 1, K):
+                acc += math.exp(lse[l] + gmarg[k, l] - m)
+            log_lam = m + math.log(acc)
+        n = goff[k + 1] - goff[k]
+        for i in range(n):
+            x[i] = a[gitems[goff[k] + i]] - log_lam
+        total += group_term(x[:n], gbuf)
+    return total
+
+
+@njit(cache=True, error_model="numpy")
+def loglik(a: np.ndarray, kind: int, brows: np.ndarray, broff: np.ndarray, bcols: np.ndarray, bcoff: np.ndarray,
+           bm: np.ndarray, pi: np.ndarray, pj: np.ndarray, pm: np.ndarray, b: np.ndarray, Q: np.ndarray,
+           Qinv: np.ndarray, E: np.ndarray, Einv: np.ndarray, gitems: np.ndarray, goff: np.ndarray,
+           gmarg: np.ndarray, gbuf: np.ndarray) -> float:
+    """The log-likelihood of either kind: ``loglik(a, *PreferenceLikelihood.kernel_args())``.
+
+    ``kind`` is ``KIND_PAIRWISE`` (:func:`total_loglik`, unchanged) or ``KIND_GROUPED`` (:func:`grouped_loglik`).
+    """
+    if kind == KIND_GROUPED:
+        return grouped_loglik(a, gitems, goff, gmarg, gbuf)
+    return total_loglik(a, brows, broff, bcols, bcoff, bm, pi, pj, pm, b, Q, Qinv, E, Einv)

@@ -26,12 +26,14 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Literal, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.errors import PbicrlWarning
 from pbicrl.likelihood import PreferenceLikelihood
 from pbicrl.preferences import Preferences
 from pbicrl.priors import IndicatorPrior, WeightPrior
@@ -352,8 +354,10 @@ def run_sbc(
     for r, child in enumerate(root.spawn(int(n_replicates))):
         s_data, s_chain, s_tie = child.spawn(3)
         lik, c, wp = simulate(problem, np.random.default_rng(s_data))
-        post = sample(lik, settings, n_chains=n_chains, seed=int(s_chain.generate_state(1)[0]), n_jobs=1,
-                      progress=False)
+        with warnings.catch_warnings():  # hundreds of short replicates: their per-run warnings are noise here
+            warnings.simplefilter("ignore", PbicrlWarning)
+            post = sample(lik, settings, n_chains=n_chains, seed=int(s_chain.generate_state(1)[0]), n_jobs=1,
+                          progress=False)
         pick = np.arange(post.n_draws - 1, -1, -stride)[:per_chain][::-1]  # evenly spaced, ending at the last
         ind = post.indicators[:, pick, :].reshape(-1, d).astype(np.float64)
         eff = ind * post.penalty_weights[:, pick, :].reshape(-1, d)

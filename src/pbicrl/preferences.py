@@ -7,11 +7,15 @@ The likelihood sums :math:`\\log P(\\tau_i \\succ \\tau_j)` over a set of ordere
   stored as one dense rows x cols block per group pair (the paper's equation; the fast kernel exploits it);
 * **pairs** - an explicit list ``(i, j, m)`` meaning :math:`\\tau_i \\succ \\tau_j` with margin ``m``
   (the authors' sampled protocol: ``n`` random pairs per group pair; or user comparisons).
+
+Preferences built from ranked groups also keep the ranking itself (**groups**: the members of each group, best
+first, and the K x K margin matrix), which the grouped Plackett-Luce likelihood
+(:class:`pbicrl.likelihood.PreferenceLikelihood` with ``kind="grouped"``) uses instead of the pairs.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal, Sequence
 
 import numpy as np
@@ -33,7 +37,9 @@ class Margins:
     matrix : ndarray, shape (K, K)
         Upper-triangular: ``matrix[k, l]`` (``k < l``, 0-based ranks) is the margin subtracted from the
         preferred side of every pair with the better trajectory in the ``k``-th group and the worse in the
-        ``l``-th. Entries on and below the diagonal are ignored (stored as 0).
+        ``l``-th. Entries on and below the diagonal are ignored (stored as 0). The grouped likelihood uses the
+        same numbers in the same scaled units: in the term of group ``k`` the trajectories of group ``l`` count as
+        if their returns were raised by ``matrix[k, l]`` (:mod:`pbicrl.likelihood`).
     """
 
     matrix: NDArray[np.float64]
@@ -131,6 +137,11 @@ class Preferences:
         Margin of each explicit pair.
     protocol : str
         How the preferences were built (for reports).
+    group_items, group_offsets : ndarray, (G,), (K+1,)
+        The ranked groups, when built from groups: trajectories of the ``k``-th best group (0-based) are
+        ``group_items[group_offsets[k]:group_offsets[k+1]]``, in ascending index order. Empty (``K = 0``) otherwise.
+    group_margins : ndarray, (K, K)
+        :math:`m_{k\\ell}` between the groups (upper triangle), as in :class:`Margins`.
     """
 
     n_trajectories: int
@@ -143,13 +154,18 @@ class Preferences:
     pair_j: NDArray[np.int64]
     pair_margins: NDArray[np.float64]
     protocol: str = "custom"
+    group_items: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    group_offsets: NDArray[np.int64] = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+    group_margins: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
 
     def __post_init__(self) -> None:
         N = int(self.n_trajectories)
-        for name in ("block_rows", "block_row_offsets", "block_cols", "block_col_offsets", "pair_i", "pair_j"):
+        for name in ("block_rows", "block_row_offsets", "block_cols", "block_col_offsets", "pair_i", "pair_j",
+                     "group_items", "group_offsets"):
             object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.int64))
-        for name in ("block_margins", "pair_margins"):
+        for name in ("block_margins", "pair_margins", "group_margins"):
             object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
+        self._check_groups(N)
         B = self.block_margins.size
         if self.block_row_offsets.size != B + 1 or self.block_col_offsets.size != B + 1:
             raise PreferenceError("preferences: block offsets must have one more entry than block margins")
@@ -163,6 +179,18 @@ class Preferences:
             raise PreferenceError("preferences: a trajectory cannot be preferred to itself")
         if self.n_pairs == 0:
             raise PreferenceError("preferences: no pairs; need at least two ranked groups or one comparison")
+
+    def _check_groups(self, N: int) -> None:
+        off, items, M = self.group_offsets, self.group_items, self.group_margins
+        K = off.size - 1
+        if off.ndim != 1 or off.size < 1 or off[0] != 0 or off[-1] != items.size or np.any(np.diff(off) < 0):
+            raise PreferenceError("preferences: group_offsets must rise from 0 to len(group_items)")
+        if K and np.any(np.diff(off) == 0):
+            raise PreferenceError("preferences: every ranked group needs at least one trajectory")
+        if items.size and (items.min() < 0 or items.max() >= N or np.unique(items).size != items.size):
+            raise PreferenceError(f"preferences: group_items must be distinct indices in [0, {N})")
+        if M.shape != (K, K) or not np.all(np.isfinite(M)):
+            raise PreferenceError(f"preferences: group_margins must be a finite {K} x {K} matrix")
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -198,6 +226,10 @@ class Preferences:
         m = Margins.parse(margins, K)
         members = [np.flatnonzero(g == lab) for lab in labels]
         empty = np.zeros(0, dtype=np.int64)
+        # the ranking itself, for the grouped likelihood (whatever the pair protocol)
+        groups = {"group_items": np.concatenate(members),
+                  "group_offsets": np.concatenate([[0], np.cumsum([mm.size for mm in members])]),
+                  "group_margins": m.matrix}
         if protocol == "all":
             rows, cols, roff, coff, bm = [], [], [0], [0], []
             for k in range(K):
@@ -206,7 +238,7 @@ class Preferences:
                     roff.append(roff[-1] + members[k].size); coff.append(coff[-1] + members[l].size)
                     bm.append(m.matrix[k, l])
             return cls(g.size, np.concatenate(rows), np.array(roff), np.concatenate(cols), np.array(coff),
-                       np.array(bm), empty, empty, np.zeros(0), protocol="all")
+                       np.array(bm), empty, empty, np.zeros(0), protocol="all", **groups)
         if isinstance(protocol, (bool, np.bool_)) or not isinstance(protocol, (int, np.integer)) or protocol < 1:
             raise PreferenceError(f"protocol: expected 'all' or a positive number of pairs per group pair, got {protocol!r}")
         rng = np.random.default_rng(seed)
@@ -217,7 +249,8 @@ class Preferences:
                 pj.append(rng.choice(members[l], size=int(protocol)))
                 pm.append(np.full(int(protocol), m.matrix[k, l]))
         return cls(g.size, empty, np.zeros(1, dtype=np.int64), empty, np.zeros(1, dtype=np.int64), np.zeros(0),
-                   np.concatenate(pi), np.concatenate(pj), np.concatenate(pm), protocol=f"{int(protocol)} per group pair")
+                   np.concatenate(pi), np.concatenate(pj), np.concatenate(pm), protocol=f"{int(protocol)} per group pair",
+                   **groups)
 
     @classmethod
     def from_pairs(cls, pairs: ArrayLike, n_trajectories: int, margins: ArrayLike | float = 0.0) -> "Preferences":
@@ -236,6 +269,11 @@ class Preferences:
     @property
     def n_blocks(self) -> int:
         return int(self.block_margins.size)
+
+    @property
+    def n_groups(self) -> int:
+        """Number of ranked groups ``K`` kept for the grouped likelihood (0 when built from explicit pairs)."""
+        return int(self.group_offsets.size - 1)
 
     @property
     def n_pairs(self) -> int:
@@ -262,5 +300,7 @@ class Preferences:
         bm = np.array([m.matrix[rank[self.block_rows[self.block_row_offsets[b]]],
                                 rank[self.block_cols[self.block_col_offsets[b]]]] for b in range(self.n_blocks)])
         pm = m.matrix[rank[self.pair_i], rank[self.pair_j]] if self.pair_i.size else np.zeros(0)
+        gm = m.matrix if self.n_groups == labels.size else self.group_margins
         return Preferences(self.n_trajectories, self.block_rows, self.block_row_offsets, self.block_cols,
-                           self.block_col_offsets, bm, self.pair_i, self.pair_j, pm, protocol=self.protocol)
+                           self.block_col_offsets, bm, self.pair_i, self.pair_j, pm, protocol=self.protocol,
+                           group_items=self.group_items, group_offsets=self.group_offsets, group_margins=gm)

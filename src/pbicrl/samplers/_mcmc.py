@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from pbicrl._kernels import total_loglik
+from pbicrl._kernels import loglik
 from pbicrl.samplers._parametric import param_column
 from pbicrl.samplers._priorkern import _logprior_w, _lognormal
 
@@ -43,7 +43,7 @@ def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: n
 @njit(cache=True, error_model="numpy")
 def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
               c, w, theta, a, scal, FbT, beta, power,
-              brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi,
+              lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi, gitems, goff, gmarg, gbuf,
               fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi,
               u_j, u_mv, z, u_acc, zt,
               cand, p_flip, p_theta, f_s, log_odds, pkind, prm,
@@ -53,6 +53,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
               a_new, col_new, theta_new, memo_valid, memo_ll):
     """Advance one chain by ``n`` iterations (global iteration numbers ``it0 .. it0+n-1``, 0-based).
 
+    ``lkind, brows .. gbuf`` are ``PreferenceLikelihood.kernel_args()`` (the likelihood's kind, pairwise arrays
+    and scratch, grouped arrays and scratch), passed on to :func:`pbicrl._kernels.loglik`.
     ``scal`` = [log-likelihood, log-prior]; ``map_scal`` = [best log-posterior, its log-likelihood];
     ``n_out`` = [number of stored draws]. ``power`` tempers the log-likelihood (1 = the paper's model). ``naive`` recounts every state for axis halfspaces (benchmark only). Draws are stored after ``burn_in`` every ``thin`` iterations.
     ``ad`` (5, d) and ``adt`` (5, P) are warm-up accumulators (count, sum, sum of squares; proposals, accepts).
@@ -111,7 +113,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + delta * FbT[j, i]
-                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
+                                            sEi, gitems, goff, gmarg, gbuf)
                     counts[C_EVALS] += 1
                     memo_valid[j] = True
                     memo_ll[j] = ll_new
@@ -146,7 +149,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                             col_new[i] = FbT[j, i]
                     for i in range(N):
                         a_new[i] = a[i] + w_new * col_new[i]
-                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
+                                            sEi, gitems, goff, gmarg, gbuf)
                     counts[C_EVALS] += 1
                     log_r = ll_new - ll + log_odds + lpw - lq
                     if math.log(u_acc[t]) < log_r:
@@ -178,7 +182,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] - w[j] * FbT[j, i]
-                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
+                                            sEi, gitems, goff, gmarg, gbuf)
                     counts[C_EVALS] += 1
                     memo_valid[j] = True
                     memo_ll[j] = ll_new
@@ -208,7 +213,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + step * FbT[j, i]
-                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
+                                            sEi, gitems, goff, gmarg, gbuf)
                     counts[C_EVALS] += 1
                     log_r = ll_new - ll + lp_newj - lp_old
                     if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
@@ -242,7 +248,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + w[j] * (col_new[i] - FbT[j, i])
-                    ll_new = power * total_loglik(a_new, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi)
+                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
+                                            sEi, gitems, goff, gmarg, gbuf)
                     counts[C_EVALS] += 1
                     log_r = ll_new - ll + lpt_new - lpt_old
                     if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
