@@ -68,3 +68,15 @@ def test_sampler_is_calibrated_on_the_pairwise_model():
     res = run_sbc(SBCProblem(design="pairs"), n_replicates=400, n_iterations=20_000, seed=1)
     ps = {n: (t["chi2_p"], t["ks_p"]) for n, t in zip(res.names, res.tests["tests"])}
     assert res.passed(0.01), ps
+
+
+@pytest.mark.slow
+def test_grouped_likelihood_is_calibrated_on_grouped_rankings():
+    """The grouped likelihood on data from a grouped ranking process: 90% intervals given c_j = 1 cover the
+    truth about 90% of the time and P(c=1) is reliable (the report in benchmarks/reports uses 300 replicates)."""
+    pytest.importorskip("scipy")
+    res = run_sbc(SBCProblem(design="groups", likelihood="grouped"), n_replicates=120, n_iterations=20_000, seed=3)
+    for name, e in res.conditional["features"].items():
+        assert 0.80 <= e["coverage90"] <= 0.97, (name, e)
+        assert e["rank_ks_p"] > 1e-3, (name, e)
+    assert res.conditional["brier"] < 0.15

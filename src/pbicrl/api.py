@@ -66,6 +66,7 @@ def infer(
     f_s: int = 4,
     p_flip: float = 0.5,
     init_scale: float = 1.0,
+    init_range: Sequence[float] = (-30.0, -1.0),
     weight_prior: WeightPrior | None = None,
     indicator_prior: IndicatorPrior | None = None,
     candidates: Sequence[str | int] | None = None,
@@ -99,7 +100,7 @@ def infer(
     pairs : "all" or int, optional
         ``pairwise`` only: every cross-group pair (default, paper Eq. 7) or ``pairs`` random pairs per group
         pair (seeded by ``pairs_seed``).
-    n_iterations, burn_in, thin, n_chains, seed, n_jobs, sigma, f_s, p_flip, init_scale
+    n_iterations, burn_in, thin, n_chains, seed, n_jobs, sigma, f_s, p_flip, init_scale, init_range
         Sampler settings (:class:`~pbicrl.samplers.SamplerSettings`).
     weight_prior, indicator_prior
         Priors (default: half-Student-t with 3 degrees of freedom on (-inf, 0], scale
@@ -148,13 +149,13 @@ def infer(
     wprior = weight_prior if weight_prior is not None else WeightPrior()
     settings = SamplerSettings(
         method=method, n_iterations=int(n_iterations), burn_in=burn_in, thin=thin, sigma=sigma, f_s=f_s,
-        p_flip=p_flip, init_scale=init_scale, weight_prior=wprior,
+        p_flip=p_flip, init_scale=init_scale, init_range=tuple(init_range), weight_prior=wprior,
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(),
         candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta)
     from pbicrl.identify import identify
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
-                     candidates=candidates, penalty_sign=wprior.sign if method != "paper" else "any",
+                     candidates=candidates, penalty_sign=wprior.sign if method not in ("paper", "authors") else "any",
                      constraints=cset)
     post = sample(lik, settings, n_chains=n_chains, seed=seed, n_jobs=n_jobs, progress=progress,
                   feature_names=dataset.feature_names, constraints=cset, identified=ident)
@@ -183,7 +184,7 @@ def infer_from_config(dataset: Dataset, config: InferConfig, *, progress: bool =
         dataset, method=c.sampler, likelihood=c.likelihood, nominal_weights=c.nominal_weights, margins=c.margins,
         beta=c.beta, power=c.power, pairs=c.pairs, pairs_seed=c.pairs_seed, n_iterations=c.iterations,
         burn_in=c.burn_in, thin=c.thin, n_chains=c.chains, seed=c.seed, n_jobs=c.jobs, sigma=c.sigma, f_s=c.f_s,
-        p_flip=c.p_flip, init_scale=c.init_scale, weight_prior=weight_prior_from_config(c),
+        p_flip=c.p_flip, init_scale=c.init_scale, init_range=tuple(c.init_range), weight_prior=weight_prior_from_config(c),
         indicator_prior=IndicatorPrior(c.indicator_pi), candidates=c.candidates, constraints=c.constraints,
         sigma_theta=c.sigma_theta, p_theta=c.p_theta, alpha=c.alpha, progress=progress)
 

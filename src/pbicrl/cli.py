@@ -74,6 +74,8 @@ def _add_infer(sub: Any) -> None:
                    help="student-t/normal scale in units of 1/(beta*sd_j) of each feature (default 2.5)")
     p.add_argument("--prior-df", type=_positive_float, help="degrees of freedom of the student-t prior (default 3)")
     p.add_argument("--indicator-pi", type=float, help="Bernoulli prior P(c_j = 1) (default 0.5)")
+    p.add_argument("--init-range", type=_floats,
+                   help="authors sampler: initial penalties uniform on 'low,high' (default -30,-1)")
     p.add_argument("--check", type=_positive_int, metavar="K",
                    help="also run a stratified K-fold posterior predictive check (K extra fits; check.json)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
@@ -101,6 +103,7 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         prior_low=None if bounds is None else bounds[0], prior_high=None if bounds is None else bounds[1],
         prior_scale=getattr(args, "prior_scale", None), prior_df=getattr(args, "prior_df", None),
         penalty_sign=args.penalty_sign, alpha=args.alpha, indicator_pi=getattr(args, "indicator_pi", None),
+        init_range=getattr(args, "init_range", None),
         candidates=None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()])
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +33,9 @@ class InferConfig:
     sampler : "pbicrl" | "paper" | "bpl"
     iterations, burn_in, thin, chains, seed, jobs : int
     sigma, f_s, p_flip, init_scale : sampler settings
+    init_range : [low, high]
+        ``authors`` sampler: initial penalties uniform on this range (the authors' code: [-30, -1] for point
+        mass, [-100, -10] for Fetch-Reach).
     likelihood : "grouped" | "pairwise"
         ``grouped`` (default): the exact grouped Plackett-Luce likelihood, calibrated for grouped rankings;
         ``pairwise``: the paper's Eq. 7 over cross-group pairs (``pairs`` and ``power`` apply to it only).
@@ -82,6 +85,7 @@ class InferConfig:
     f_s: int = 4
     p_flip: float = 0.5
     init_scale: float = 1.0
+    init_range: list = field(default_factory=lambda: [-30.0, -1.0])
     likelihood: str = "grouped"
     prior: str = "student_t"
     prior_low: float | None = None
@@ -111,7 +115,7 @@ _TYPES: dict[str, tuple[type, ...]] = {
     "indicator_pi": (int, float), "iterations": (int,), "burn_in": (int,), "thin": (int,), "chains": (int,),
     "seed": (int,), "jobs": (int,), "f_s": (int,), "pairs_seed": (int,), "sampler": (str,), "prior": (str,),
     "pairs": (str, int), "nominal_weights": (list,), "margins": (list,), "candidates": (list,),
-    "constraints": (list,), "sigma_theta": (int, float), "p_theta": (int, float),
+    "constraints": (list,), "init_range": (list,), "sigma_theta": (int, float), "p_theta": (int, float),
 }
 
 

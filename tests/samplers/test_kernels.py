@@ -324,3 +324,32 @@ def test_truncated_prior_posterior_matches_quadrature(prior):
     cm, _ = res.conditional_penalty()
     assert res.p_constraint[0] == pytest.approx(p1, abs=0.03)
     assert cm[0] == pytest.approx(ew, abs=0.1 * rp.scale[0])
+
+
+def test_authors_sampler_resets_switched_off_weights():
+    """``authors`` = Algorithm 1 except that a flip to off zeroes the weight (the authors' code)."""
+    from pbicrl.samplers import SamplerSettings, sample
+    from pbicrl.synthetic import make_problem
+
+    ds = make_problem(15, labels="violations", violation_rate=0.4, seed=3).dataset
+    lik = PreferenceLikelihood.from_dataset(ds, likelihood="pairwise")
+    runs = {}
+    for method in ("authors", "paper"):
+        # f_s larger than the run: every iteration is a flip, so weights change only by the reset
+        st = SamplerSettings(method=method, n_iterations=3000, burn_in=0, thin=1, f_s=10**9, init_range=(-30, -1))
+        runs[method] = sample(lik, st, n_chains=1, seed=4, n_jobs=1, progress=False)
+    a = runs["authors"]
+    c, w = a.indicators[0], a.penalty_weights[0]
+    assert np.all(w[0] <= 0) and np.all(w[0] >= -30)
+    reset_seen = 0
+    for j in range(c.shape[1]):
+        off_after_on = np.flatnonzero((c[1:, j] == 0) & (c[:-1, j] == 1))
+        if off_after_on.size:
+            first = off_after_on[0] + 1
+            assert np.all(w[first:, j] == 0.0)
+            reset_seen += 1
+        assert set(np.unique(w[:, j])) <= {w[0, j], 0.0}
+    assert reset_seen >= 1
+    p = runs["paper"]
+    assert np.all(p.penalty_weights[0] == p.penalty_weights[0][:1])  # paper keeps every latent weight
+    assert a.settings["init_range"] == [-30.0, -1.0]

@@ -23,6 +23,7 @@ from pbicrl.samplers._priorkern import _logprior_w, _lognormal
 MODE_PBICRL = 0  # flip-and-draw moves (reversible jump), valid for the stated prior
 MODE_PAPER = 1  # the paper's Algorithm 1 (2 with a schedule that does propose theta)
 MODE_BPL = 2  # Algorithm 3: weights only, every feature on
+MODE_AUTHORS = 3  # Algorithm 1 as the authors' public code runs it: switching c_j off resets w_j to 0
 
 # counters layout
 C_FLIP_PROP, C_FLIP_ACC, C_W_PROP, C_W_ACC, C_EVALS, C_T_PROP, C_T_ACC = 0, 1, 2, 3, 4, 5, 6
@@ -67,12 +68,13 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
     nc = cand.size
     ll = scal[0]
     lp = scal[1]
-    use_prior = mode != MODE_PAPER
+    latent = mode == MODE_PAPER or mode == MODE_AUTHORS  # Algorithm 1's schedule, likelihood-ratio acceptance
+    use_prior = not latent
     for t in range(n):
         it = it0 + t
         move = 0  # 0 none, 1 flip, 2 weight, 3 theta
         j = -1
-        if mode == MODE_PAPER:
+        if latent:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
             if ((it + 1) % f_s) != 0:  # paper counts iterations from 1
                 move = 1
@@ -105,7 +107,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
         accepted = False
         if move == 1:
             counts[C_FLIP_PROP] += 1
-            if mode == MODE_PAPER:
+            if latent:
                 # flip c_j, keep the latent weight (and parameters); likelihood ratio only
                 delta = w[j] if c[j] == 0 else -w[j]
                 if memo_valid[j]:
@@ -123,6 +125,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                     for i in range(N):
                         a[i] += delta * FbT[j, i]
                     c[j] = 1 - c[j]
+                    if mode == MODE_AUTHORS and c[j] == 0:
+                        w[j] = 0.0  # the authors' code: a feature switched off loses its weight
                     ll = ll_new
                     accepted = True
             elif c[j] == 0:
@@ -267,7 +271,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 counts[C_T_ACC] += 1
                 adt[4, p0] += 1
         if accepted:
-            if mode == MODE_PAPER:
+            if latent:
                 for k in range(d):
                     memo_valid[k] = False
             else:

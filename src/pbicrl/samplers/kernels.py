@@ -26,6 +26,12 @@ Three methods share one compiled loop (:mod:`pbicrl.samplers._mcmc`):
     likelihood ratio alone (flat improper prior). Kept for exact reproduction; as a sampler it mixes
     poorly (a feature switched back on proposes its stale latent weight).
 
+``"authors"`` - Algorithm 1 as the authors' public code runs it: identical to ``"paper"`` except that a
+    flip to off sets the weight to zero (switching it back on starts from zero), with their initialisation:
+    indicators Bernoulli(1/2) and penalties uniform on ``init_range`` (their point mass: [-30, -1];
+    Fetch-Reach: [-100, -10]) for every feature, nominal ones included. The reset acts as shrinkage of
+    :math:`c_j w_{p,j}` toward zero; judge this sampler on the effective penalty.
+
 ``"bpl"`` - Algorithm 3: every candidate feature active, random walk on :math:`w_p` (optionally with a
     prior). Features that are not candidates keep :math:`w_j = 0`: they are not part of the model.
 
@@ -52,8 +58,10 @@ from pbicrl.samplers import _mcmc
 
 __all__ = ["SamplerSettings", "ChainState", "StepInfo", "Kernel", "build_kernel", "METHODS"]
 
-METHODS = ("pbicrl", "paper", "bpl")
-_MODE = {"pbicrl": _mcmc.MODE_PBICRL, "paper": _mcmc.MODE_PAPER, "bpl": _mcmc.MODE_BPL}
+METHODS = ("pbicrl", "paper", "authors", "bpl")
+_MODE = {"pbicrl": _mcmc.MODE_PBICRL, "paper": _mcmc.MODE_PAPER, "authors": _mcmc.MODE_AUTHORS,
+         "bpl": _mcmc.MODE_BPL}
+_LATENT = ("paper", "authors")  # Algorithm 1's schedule and acceptance; flat improper prior
 
 
 @dataclass(frozen=True)
@@ -62,7 +70,7 @@ class SamplerSettings:
 
     Parameters
     ----------
-    method : {"pbicrl", "paper", "bpl"}
+    method : {"pbicrl", "paper", "authors", "bpl"}
         See module docstring.
     n_iterations : int
         Metropolis-Hastings iterations per chain (paper: 400,000).
@@ -103,7 +111,7 @@ class SamplerSettings:
         Recount every state on a parameter proposal even where a binary search suffices (for benchmarks).
     """
 
-    method: Literal["pbicrl", "paper", "bpl"] = "pbicrl"
+    method: Literal["pbicrl", "paper", "authors", "bpl"] = "pbicrl"
     n_iterations: int = 400_000
     burn_in: int | None = None
     thin: int | None = None
@@ -112,6 +120,7 @@ class SamplerSettings:
     p_flip: float = 0.5
     adapt: bool | None = None
     init_scale: float = 1.0
+    init_range: tuple[float, float] = (-30.0, -1.0)
     weight_prior: WeightPrior = field(default_factory=WeightPrior)
     indicator_prior: IndicatorPrior = field(default_factory=IndicatorPrior)
     candidates: tuple[int, ...] | None = None
@@ -136,6 +145,10 @@ class SamplerSettings:
             raise ValueError(f"p_flip: must lie strictly between 0 and 1, got {self.p_flip}")
         if not (np.isfinite(self.init_scale) and self.init_scale > 0):
             raise ValueError(f"init_scale: must be positive, got {self.init_scale}")
+        lo_hi = tuple(float(x) for x in self.init_range)
+        if len(lo_hi) != 2 or not (np.isfinite(lo_hi[0]) and np.isfinite(lo_hi[1]) and lo_hi[0] < lo_hi[1]):
+            raise ValueError(f"init_range: expected two finite numbers low < high, got {self.init_range!r}")
+        object.__setattr__(self, "init_range", lo_hi)
         if self.method == "pbicrl" and self.weight_prior.kind == "improper":
             raise PriorError("weight prior: the pbicrl sampler needs a proper prior on w_p (P(c=1) is undefined "
                              "otherwise); use 'student_t', 'normal' or 'flat' with bounds, or method='paper'")
@@ -171,7 +184,8 @@ class SamplerSettings:
     def to_dict(self) -> dict:
         return {"method": self.method, "iterations": int(self.n_iterations), "burn_in": self.burn_in_,
                 "thin": self.thin_, "sigma": self.sigma, "f_s": self.f_s, "p_flip": self.p_flip,
-                "adapt": self.adapt_, "init_scale": self.init_scale, "weight_prior": self.weight_prior.to_dict(),
+                "adapt": self.adapt_, "init_scale": self.init_scale,
+                "init_range": list(self.init_range) if self.method == "authors" else None, "weight_prior": self.weight_prior.to_dict(),
                 "indicator_prior": {"pi": self.indicator_prior.pi},
                 "candidates": None if self.candidates is None else list(self.candidates),
                 "sigma_theta": self.sigma_theta, "p_theta": self.p_theta}
@@ -295,7 +309,7 @@ class Kernel:
         ``mean_features`` and ``beta``; parametric constraint features use :math:`\\mathrm{sd} = 0.5`. The paper
         mode uses the flat improper prior of Algorithm 1, whatever the settings say.
         """
-        if self.settings.method == "paper":
+        if self.settings.method in _LATENT:
             return WeightPrior("improper", sign="any").resolve(self.likelihood.mean_features, beta=self.likelihood.beta,
                                                                n_parametric=self.n_features - self.d_known)
         return self._settings_prior
@@ -318,13 +332,13 @@ class Kernel:
         """
         s = self.settings
         out = self.resolved_prior.to_dict()
-        out.update({"method": s.method, "applied": s.method != "paper",
+        out.update({"method": s.method, "applied": s.method not in _LATENT,
                     "indicator_pi": None if s.method == "bpl" else float(s.indicator_prior.pi)})
         return out
 
     def _step_unit(self) -> NDArray[np.float64]:
         """Per-feature unit of random-walk steps: 1 in paper mode (Algorithm 1 verbatim), else the prior's."""
-        return np.ones(self.n_features) if self.settings.method == "paper" else self.resolved_prior.unit
+        return np.ones(self.n_features) if self.settings.method in _LATENT else self.resolved_prior.unit
 
     def _param_arrays(self) -> dict[str, NDArray]:
         if self.constraints is not None:
@@ -338,7 +352,7 @@ class Kernel:
 
     def _log_prior(self, c: NDArray, w: NDArray, theta: NDArray) -> float:
         s = self.settings
-        if s.method == "paper":
+        if s.method in _LATENT:
             return 0.0
         lpw = self.resolved_prior.logpdf(w)
         cs = self.constraints
@@ -393,6 +407,8 @@ class Kernel:
             c[cand] = rng.integers(0, 2, cand.size).astype(np.int8)
         if s.method == "paper":
             w = rng.normal(0.0, s.init_scale, d)
+        elif s.method == "authors":
+            w = rng.uniform(s.init_range[0], s.init_range[1], d)
         elif s.method == "bpl":
             w = self._bpl_initial_weights(rng)
         else:
