@@ -23,9 +23,9 @@ __all__ = ["EXPERIMENTS", "PAPER", "reproduce", "run_unit", "add_subcommands"]
 
 # Numbers printed in the paper (Tables I, II, IV; Sections V-A/V-B and the appendix).
 PAPER: dict[str, Any] = {
-    "point-mass": {"true_weights": [1, -10, -100, -1], "nominal_weights": [1, 0, 0, -1],
+    "point-mass": {"true_weights": [1, -10, -100, -1], "nominal_weights": [1, 0, 0, -1], "authors_init_range": (-30, -1),
                    "margins": {"m12": 0.0, "m23": 2.9, "m13": 6.0}, "relation": [1, 4], "demos_per_group": 60},
-    "fetch-reach": {"true_weights": [0.1, -20, -100, -5], "nominal_weights": [0.1, 0, 0, -5],
+    "fetch-reach": {"true_weights": [0.1, -20, -100, -5], "nominal_weights": [0.1, 0, 0, -5], "authors_init_range": (-100, -10),
                     "margins": {"m12": 1.0, "m23": 1.5, "m13": 2.5}, "relation": [1, 1], "demos_per_group": 60},
     "halfcheetah": {"wall": 8.0, "penalty": -50.0, "cmse": (0.073, 0.12), "runtime_s": (3298, 659),
                     "icl_cmse": (69.74, 0.40), "icl_runtime_s": (20650, 2982),
@@ -64,7 +64,8 @@ def run_unit(config: dict, out_dir: Path) -> dict[str, Any]:
     post = infer(ds, method=config["method"], margins=config.get("margins"), pairs=pairs, likelihood=likelihood,
                  pairs_seed=int(config.get("sample_seed", 0)), n_iterations=int(config["iterations"]),
                  n_chains=int(config.get("chains", 1)), n_jobs=1, seed=int(config["seed"]),
-                 sigma=float(config.get("sigma", 0.1)), f_s=int(config.get("f_s", 4)),
+                 sigma=float(config.get("sigma") or 0.1), f_s=int(config.get("f_s", 4)),
+                 init_range=tuple(config.get("init_range") or (-30.0, -1.0)),
                  sigma_theta=float(config.get("sigma_theta", 0.5)), init_scale=float(config.get("init_scale", 1.0)),
                  weight_prior=wp, constraints=config.get("constraints"), candidates=config.get("candidates"),
                  nominal_weights=config.get("nominal_weights"), progress=False)
@@ -281,13 +282,21 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     tune_s = time.perf_counter() - t0
     tuned = tuning.margins.matrix.tolist()
     methods = [("BPL", "bpl", None), ("PBICRL, m = 0", "paper", None), ("PBICRL, tuned margins", "paper", tuned),
-               ("PBICRL, paper's margins", "paper", paper_margins), ("PBICRL (valid RJ sampler), tuned margins", "pbicrl", tuned)]
+               ("PBICRL, paper's margins", "paper", paper_margins),
+               ("PBICRL, authors' code, m = 0", "authors", None),
+               ("PBICRL (valid RJ sampler), tuned margins", "pbicrl", tuned),
+               ("pbicrl default (grouped likelihood, half-t prior)", "default", None)]
     configs, names = [], []
     for label, method, m in methods:
         for s in range(ctx.seeds):
-            configs.append({"dataset": dataset, "n_per_group": n, "sample_seed": s, "method": method, "margins": m,
-                            "iterations": ctx.iterations, "seed": s, "sigma": 0.1, "f_s": 4, "pairs": ctx.pairs(n),
-                            "prior": "improper" if method in ("bpl", "paper") else "flat", "label": label})
+            cfg = {"dataset": dataset, "n_per_group": n, "sample_seed": s, "method": method, "margins": m,
+                   "iterations": ctx.iterations, "seed": s, "sigma": 0.1, "f_s": 4, "pairs": ctx.pairs(n),
+                   "prior": "improper" if method in ("bpl", "paper", "authors") else "flat", "label": label}
+            if method == "authors":
+                cfg["init_range"] = list(paper["authors_init_range"])
+            if method == "default":  # pbicrl's defaults on the same subsample: grouped likelihood, half-t prior
+                cfg.update({"method": "pbicrl", "likelihood": "grouped", "prior": "default", "pairs": None})
+            configs.append(cfg)
             names.append(f"{name}-{method}")
     res = _run(ctx, configs, names)
     feats = res[0]["feature_names"]
@@ -295,25 +304,40 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     lines = [f"{n} demonstrations per group drawn from `{Path(dataset).name}` ({full.group_counts()} available), "
              f"{ctx.seeds} seeds (seed = subsample and chain seed), {ctx.iterations:,} iterations, sigma 0.1, f_s 4, "
              f"protocol: {'all cross-group pairs (paper Eq. 7)' if ctx.protocol == 'all' else f'{n} random pairs per group pair (authors code)'}. "
-             f"BPL and PBICRL use the paper's algorithms (3 and 1) with the flat improper prior; the last row uses "
-             f"pbicrl's reversible-jump sampler with the flat prior on [-1000, 1000].", "",
+             f"BPL and PBICRL use the paper's algorithms (3 and 1) with the flat improper prior; the "valid RJ sampler" row uses "
+             f"pbicrl's reversible-jump sampler with the flat prior on [-1000, 1000] (both signs), all with the "
+             f"paper's Eq. 7. The authors'-code row is Algorithm 1 with a switched-off weight reset to 0 and initial "
+             f"penalties uniform on {list(paper['authors_init_range'])}. The last row is pbicrl's default model (grouped "
+             f"likelihood, half-Student-t prior on penalties <= 0, reversible-jump sampler) on the same subsamples.", "",
              f"Margin tuning (automated, relation {paper['relation']} between consecutive gaps): chosen "
              f"{tuning.margins.as_dict()}, relation achieved {np.round(tuning.relation_achieved, 3).tolist()} "
              f"({len(tuning.table)} candidates, {tune_s:.0f} s). Paper (by hand): {pm}.", "",
-             "MAP effective penalty c*w_p, mean ± std over seeds (truth in the first row):", "",
+             "Effective penalty c*w_p, mean ± std over seeds (truth in the first row): the MAP draw for the paper's "
+             "algorithms (their convention), the conditional median of the selected set (P(c=1) > 0.5) for pbicrl's "
+             "default. Constraint set: MAP indicators for BPL/paper/pbicrl rows; |c*w_p| >= 1 of the MAP for the "
+             "authors' code (its reset shrinks c*w_p toward 0 while c is often 1, as the paper's bar charts show "
+             "c*w_p); the selected set for the default row.", "",
              "| method | " + " | ".join(feats) + " | exact constraint set | penalties within 15% |",
              "|---|" + "---|" * (len(feats) + 2),
              "| truth | " + " | ".join(f"{v:g}" for v in true_pen) + " | | |"]
     truth_set = (true_pen != 0).astype(int)
     for label, _, _ in methods:
         rr = [r for r, c in zip(res, configs) if c["label"] == label]
-        W = np.array([r["map_effective_penalty"] for r in rr])
-        C = np.array([r["map_indicators"] for r in rr])
+        if "default" in label:
+            W = np.array([r["selected_effective_penalty"] for r in rr])
+            C = np.array([r["selected_indicators"] for r in rr])
+        elif "authors" in label:
+            W = np.array([r["map_effective_penalty"] for r in rr])
+            C = (np.abs(W) >= 1.0).astype(int)
+        else:
+            W = np.array([r["map_effective_penalty"] for r in rr])
+            C = np.array([r["map_indicators"] for r in rr])
         exact_n = int(sum(np.array_equal(c, truth_set) for c in C))
         exact = "n/a (no indicators)" if label == "BPL" else f"{exact_n}/{len(rr)}"
         on = truth_set == 1
         within = int(sum(np.all(np.abs(w[on] - true_pen[on]) <= 0.15 * np.abs(true_pen[on])) for w in W))
-        rel = [relation_error(r["group_means_map"], paper["relation"])[1].tolist() for r in rr]
+        gm_key = "group_means_selected" if "default" in label else "group_means_map"
+        rel = [relation_error(r[gm_key], paper["relation"])[1].tolist() for r in rr]
         rows[label] = {"mean": W.mean(0).tolist(), "std": W.std(0).tolist(), "exact_set": exact_n, "within_15pct": within,
                        "per_seed": W.tolist(), "relation_achieved": rel,
                        "runtime_s": _ms([r["runtime_s"] for r in rr]), "n_pairs": rr[0]["n_pairs"]}
