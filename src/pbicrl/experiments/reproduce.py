@@ -304,7 +304,7 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     lines = [f"{n} demonstrations per group drawn from `{Path(dataset).name}` ({full.group_counts()} available), "
              f"{ctx.seeds} seeds (seed = subsample and chain seed), {ctx.iterations:,} iterations, sigma 0.1, f_s 4, "
              f"protocol: {'all cross-group pairs (paper Eq. 7)' if ctx.protocol == 'all' else f'{n} random pairs per group pair (authors code)'}. "
-             f"BPL and PBICRL use the paper's algorithms (3 and 1) with the flat improper prior; the "valid RJ sampler" row uses "
+             f"BPL and PBICRL use the paper's algorithms (3 and 1) with the flat improper prior; the 'valid RJ sampler' row uses "
              f"pbicrl's reversible-jump sampler with the flat prior on [-1000, 1000] (both signs), all with the "
              f"paper's Eq. 7. The authors'-code row is Algorithm 1 with a switched-off weight reset to 0 and initial "
              f"penalties uniform on {list(paper['authors_init_range'])}. The last row is pbicrl's default model (grouped "
