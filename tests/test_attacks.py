@@ -470,7 +470,8 @@ def test_ctrl_c_stops_inference_at_once(tmp_path, demo):
         t0 = time.monotonic()
         os.kill(proc.pid, signal.SIGINT)  # the parent alone, as `kill -INT` does
         _, err = proc.communicate(timeout=30)
-        assert time.monotonic() - t0 < 5.0, "waited for the chains instead of stopping them"
+        # generous for a loaded machine; the chains themselves would run for hours
+        assert time.monotonic() - t0 < 20.0, "waited for the chains instead of stopping them"
         assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
         assert _wait(lambda: not any(_alive(k) for k in kids), 5)
         assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

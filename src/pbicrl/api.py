@@ -76,7 +76,7 @@ def infer(
     alpha: float = 0.05,
     progress: bool = True,
 ) -> Posterior:
-    """Infer constraints from a grouped dataset.
+    r"""Infer constraints from a grouped dataset.
 
     Parameters
     ----------

@@ -343,6 +343,13 @@ def _join_negative_values(argv: Sequence[str]) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    import warnings
+
+    from pbicrl.errors import PbicrlWarning
+
+    # The commands print the library's warnings themselves ("warning: ..." after the table); Python's own
+    # print of the same PbicrlWarning would repeat each one with a source line.
+    warnings.simplefilter("ignore", PbicrlWarning)
     parser = build_parser()
     args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
     try:

@@ -16,7 +16,7 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class InferConfig:
-    """Settings of ``pbicrl infer`` (same names in the TOML file, top level or under ``[infer]``).
+    r"""Settings of ``pbicrl infer`` (same names in the TOML file, top level or under ``[infer]``).
 
     Attributes
     ----------
