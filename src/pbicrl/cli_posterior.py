@@ -26,15 +26,7 @@ from pbicrl._argtypes import positive_int as _positive_int
 
 __all__ = ["add_subcommands", "check_run_dir", "load_run_checked"]
 
-_MAX_SUMMARY_BYTES = 64 << 20  # a summary.json is a few hundred KiB at most; more is not a summary
-
-# summary.json keys that readers use, and the JSON types they must have when present
-_SUMMARY_TYPES: dict[str, tuple[type, ...]] = {
-    "method": (str,), "feature_names": (list,), "parameter_names": (list,), "settings": (dict,), "extra": (dict,),
-    "map": (dict,), "posterior": (dict,), "seed": (int,), "chains": (int,), "iterations": (int,),
-    "schema_version": (int,), "warnings": (list,),
-}
-
+from pbicrl.runs import check_run_dir  # noqa: E402  (re-exported: the checks live with the reader)
 
 # ---------------------------------------------------------------------------------------------- inputs
 def _same_file(a: Path, b: Path) -> bool:
@@ -54,86 +46,11 @@ def _refuse_inputs(out: Path, inputs: Sequence[Path | None], flag: str) -> None:
                              "(--overwrite never replaces an input)")
 
 
-def _check_summary(path: Path) -> None:
-    from pbicrl.runs import RunError
-
-    try:
-        size = path.stat().st_size
-    except OSError as exc:
-        raise RunError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if not path.is_file():
-        raise RunError(f"{path}: not a regular file")
-    if size > _MAX_SUMMARY_BYTES:
-        raise RunError(f"{path}: {size:,} bytes, too large for a run summary (is it the right file?)")
-    try:
-        summary = json.loads(path.read_bytes().decode("utf-8"))
-    except UnicodeDecodeError:
-        raise RunError(f"{path}: not UTF-8 text (not a summary.json written by pbicrl)") from None
-    except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError; absurd nesting recurses
-        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise RunError(f"{path}: not valid JSON ({why})") from None
-    if not isinstance(summary, dict):
-        raise RunError(f"{path}: expected a JSON object, got a JSON {type(summary).__name__}")
-    for key, types in _SUMMARY_TYPES.items():
-        value = summary.get(key)
-        if value is not None and (not isinstance(value, types) or isinstance(value, bool) and bool not in types):
-            raise RunError(f"{path}: '{key}' should be a JSON {' or '.join(_json_type(t) for t in types)}, "
-                           f"got {_json_type(type(value))} {json.dumps(value)[:60]}")
-    for key in ("feature_names", "parameter_names"):
-        names = summary.get(key)
-        if names is not None and not all(isinstance(n, str) for n in names):
-            raise RunError(f"{path}: '{key}' should be a list of strings")
-    data = (summary.get("extra") or {}).get("data")
-    if data is not None and (not isinstance(data, dict) or not isinstance(data.get("path", ""), (str, type(None)))):
-        raise RunError(f"{path}: 'extra.data' should be an object with a string 'path'")
-
-
-def _json_type(t: type) -> str:
-    return {str: "string", list: "array", dict: "object", int: "integer", float: "number", bool: "boolean",
-            type(None): "null"}.get(t, t.__name__)
-
-
-def check_run_dir(run_dir: str | os.PathLike[str]) -> None:
-    """Check a run directory's files before reading them; errors name the file and what is wrong.
-
-    Raises
-    ------
-    FileNotFoundError
-        No such directory, or ``summary.json`` / ``chains.npz`` missing.
-    pbicrl.runs.RunError
-        ``chains.npz`` empty, not an archive, with an unreadable or huge header or arrays larger than memory;
-        ``summary.json`` not a JSON object or a known key of the wrong type.
-    """
-    from pbicrl.data import DatasetError, inspect_npz
-    from pbicrl.runs import RunError
-
-    run = Path(run_dir)
-    if not run.is_dir():
-        what = "not a directory" if run.exists() else "no such directory"
-        raise FileNotFoundError(f"run: {run}: {what} (expected the --out directory of pbicrl infer)")
-    sj, cz = run / "summary.json", run / "chains.npz"
-    for f in (sj, cz):
-        if not f.exists():
-            raise FileNotFoundError(f"run: {f}: missing (a run directory holds summary.json and chains.npz)")
-    try:
-        inspect_npz(cz, what="chains file")
-    except DatasetError as exc:
-        raise RunError(str(exc)) from None
-    _check_summary(sj)
-
-
 def load_run_checked(run_dir: str | os.PathLike[str]) -> Any:
-    """:func:`pbicrl.runs.load_run` after :func:`check_run_dir`; any malformation left is a ``RunError``."""
-    from pbicrl.runs import RunError, load_run
+    """:func:`pbicrl.runs.load_run` (which checks the files first; any malformation is a ``RunError``)."""
+    from pbicrl.runs import load_run
 
-    check_run_dir(run_dir)
-    try:
-        return load_run(run_dir)
-    except (FileNotFoundError, RunError):
-        raise
-    except (TypeError, KeyError, AttributeError, IndexError, EOFError, UnicodeDecodeError, OverflowError) as exc:
-        # a structurally valid file with contents pbicrl never writes (e.g. a string array of indicators)
-        raise RunError(f"{run_dir}: malformed run directory ({type(exc).__name__}: {exc})") from None
+    return load_run(run_dir)
 
 
 # ---------------------------------------------------------------------------------------------- diagnose

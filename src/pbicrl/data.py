@@ -442,16 +442,21 @@ def clean_stale_temporaries(target: str | os.PathLike[str], *, legacy_age_s: flo
 
 
 # ---------------------------------------------------------------------------------------------- validation
+def _real_float64(raw: NDArray, what: str) -> NDArray[np.float64]:
+    """``raw`` as float64; complex values are an error (a float cast would drop the imaginary part silently).
+
+    ``what`` starts the message, e.g. ``"features:"`` or ``"features: trajectory 3 has"``.
+    """
+    if raw.dtype.kind == "c":
+        raise DatasetError(f"{what} complex values (dtype {raw.dtype}) are not supported; store the real and "
+                           "imaginary parts as separate columns")
+    return np.asarray(raw, dtype=np.float64)
+
+
 def _as_float_2d(name: str, value: ArrayLike) -> NDArray[np.float64]:
     raw = value if isinstance(value, np.ndarray) else None
     try:
-        if raw is None:
-            raw = np.asarray(value)
-        if raw.dtype.kind == "c":
-            # a float cast would drop the imaginary part without a word
-            raise DatasetError(f"{name}: complex values (dtype {raw.dtype}) are not supported; store the real "
-                               "and imaginary parts as separate columns")
-        arr = np.asarray(raw, dtype=np.float64)
+        arr = _real_float64(np.asarray(value) if raw is None else raw, f"{name}:")
     except DatasetError:
         raise
     except (TypeError, ValueError) as exc:
@@ -669,11 +674,7 @@ class Dataset:
         blocks = []
         for i, f in enumerate(features):
             try:
-                raw = np.asarray(f)
-                if raw.dtype.kind == "c":
-                    raise DatasetError(f"features: trajectory {i} has complex values (dtype {raw.dtype}), which "
-                                       "are not supported; store real and imaginary parts as separate features")
-                a = np.asarray(raw, dtype=np.float64)
+                a = _real_float64(np.asarray(f), f"features: trajectory {i} has")
             except DatasetError:
                 raise
             except (TypeError, ValueError) as exc:

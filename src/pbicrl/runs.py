@@ -26,7 +26,17 @@ from numpy.typing import NDArray
 
 from pbicrl.results import SCHEMA_VERSION, DrawsView
 
-__all__ = ["RunRecord", "RunError", "load_run"]
+__all__ = ["RunRecord", "RunError", "check_run_dir", "load_run"]
+
+_MAX_SUMMARY_BYTES = 64 << 20  # a summary.json is a few hundred KiB at most; more is not a summary
+
+# summary.json keys that readers use, and the JSON types they must have when present
+_SUMMARY_TYPES: dict[str, tuple[type, ...]] = {
+    "method": (str,), "feature_names": (list,), "parameter_names": (list,), "settings": (dict,), "extra": (dict,),
+    "map": (dict,), "posterior": (dict,), "seed": (int,), "chains": (int,), "iterations": (int,),
+    "warnings": (list,),  # schema_version: checked (positive integer, known version) by the reader
+}
+
 
 
 class RunError(ValueError):
@@ -121,7 +131,93 @@ def _array(z: Any, key: str, path: Path, ndim: int) -> NDArray:
     return a
 
 
+def _check_summary(path: Path) -> None:
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise RunError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if not path.is_file():
+        raise RunError(f"{path}: not a regular file")
+    if size > _MAX_SUMMARY_BYTES:
+        raise RunError(f"{path}: {size:,} bytes, too large for a run summary (is it the right file?)")
+    try:
+        summary = json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise RunError(f"{path}: not UTF-8 text (not a summary.json written by pbicrl)") from None
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError; absurd nesting recurses
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RunError(f"{path}: not valid JSON ({why})") from None
+    if not isinstance(summary, dict):
+        raise RunError(f"{path}: expected a JSON object, got a JSON {type(summary).__name__}")
+    for key, types in _SUMMARY_TYPES.items():
+        value = summary.get(key)
+        if value is not None and (not isinstance(value, types) or isinstance(value, bool) and bool not in types):
+            raise RunError(f"{path}: '{key}' should be a JSON {' or '.join(_json_type(t) for t in types)}, "
+                           f"got {_json_type(type(value))} {json.dumps(value)[:60]}")
+    for key in ("feature_names", "parameter_names"):
+        names = summary.get(key)
+        if names is not None and not all(isinstance(n, str) for n in names):
+            raise RunError(f"{path}: '{key}' should be a list of strings")
+    data = (summary.get("extra") or {}).get("data")
+    if data is not None and (not isinstance(data, dict) or not isinstance(data.get("path", ""), (str, type(None)))):
+        raise RunError(f"{path}: 'extra.data' should be an object with a string 'path'")
+
+
+def _json_type(t: type) -> str:
+    return {str: "string", list: "array", dict: "object", int: "integer", float: "number", bool: "boolean",
+            type(None): "null"}.get(t, t.__name__)
+
+
+def check_run_dir(run_dir: str | os.PathLike[str]) -> None:
+    """Check a run directory's files before reading them; errors name the file and what is wrong.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such directory, or ``summary.json`` / ``chains.npz`` missing.
+    pbicrl.runs.RunError
+        ``chains.npz`` empty, not an archive, with an unreadable or huge header or arrays larger than memory;
+        ``summary.json`` not a JSON object or a known key of the wrong type.
+    """
+    from pbicrl.data import DatasetError, inspect_npz
+
+    run = Path(run_dir)
+    if not run.is_dir():
+        what = "not a directory" if run.exists() else "no such directory"
+        raise FileNotFoundError(f"run: {run}: {what} (expected the --out directory of pbicrl infer)")
+    sj, cz = run / "summary.json", run / "chains.npz"
+    for f in (sj, cz):
+        if not f.exists():
+            raise FileNotFoundError(f"run: {f}: missing (a run directory holds summary.json and chains.npz)")
+    _check_summary(sj)
+    try:
+        inspect_npz(cz, what="chains file")
+    except DatasetError as exc:
+        raise RunError(str(exc)) from None
+
+
 def load_run(run_dir: str | os.PathLike[str]) -> RunRecord:
+    """Read a run directory after :func:`check_run_dir`; any malformation left is a :class:`RunError`.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the directory or one of its two files does not exist.
+    RunError
+        If a file is malformed, or ``summary.json`` has a ``schema_version`` newer than this pbicrl reads
+        (the message names the file).
+    """
+    check_run_dir(run_dir)
+    try:
+        return _read_run(run_dir)
+    except (FileNotFoundError, RunError):
+        raise
+    except (TypeError, KeyError, AttributeError, IndexError, EOFError, UnicodeDecodeError, OverflowError) as exc:
+        # a structurally valid file with contents pbicrl never writes (e.g. a string array of indicators)
+        raise RunError(f"{run_dir}: malformed run directory ({type(exc).__name__}: {exc})") from None
+
+
+def _read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
     """Read ``summary.json`` and ``chains.npz`` from a run directory.
 
     Raises
