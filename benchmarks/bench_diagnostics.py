@@ -40,7 +40,7 @@ def main() -> None:
                            "margins": [0.0, 2.9], "iterations": args.iterations, "chains": args.chains,
                            "seed": args.seed, "truth": truth}, "runs": {}}
     for label, bound in (("prior_1000", 1000.0), ("prior_100", 100.0)):
-        post = pbicrl.infer(prob.dataset, margins=[0.0, 2.9], n_iterations=args.iterations, n_chains=args.chains,
+        post = pbicrl.infer(prob.dataset, margins=[0.0, 2.9], iterations=args.iterations, chains=args.chains,
                             seed=args.seed, weight_prior=pbicrl.WeightPrior("flat", -bound, bound), progress=False)
         post.extra["data"]["path"] = str(data)
         run = post.save(args.out / label, overwrite=True)

@@ -17,7 +17,7 @@ out = []
 def run(name, path, seed, label, **kw):
     ds = pbicrl.load_dataset(path)
     t0 = time.time()
-    post = pbicrl.infer(ds, n_iterations=ITER, n_chains=2, n_jobs=1, seed=seed, progress=False, **kw)
+    post = pbicrl.infer(ds, iterations=ITER, chains=2, jobs=1, seed=seed, progress=False, **kw)
     s = post.summary()
     rh = s["posterior"].get("rhat") or {}
     vals = [v for k in rh for v in (rh[k].values() if isinstance(rh[k], dict) else [rh[k]]) if v is not None] if isinstance(rh, dict) else []

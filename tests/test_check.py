@@ -47,7 +47,7 @@ def test_constraints_explain_heldout_rankings_better_than_nominal():
     ds = prob.dataset
     folds = kfold_split(ds.group, 2, seed=0)
     train = np.setdiff1d(np.arange(ds.n_trajectories), folds[0])
-    post = pbicrl.infer(ds.subset(train), n_iterations=6000, n_chains=2, n_jobs=1, seed=1, progress=False)
+    post = pbicrl.infer(ds.subset(train), iterations=6000, chains=2, jobs=1, seed=1, progress=False)
     res = predictive_check(post, ds.subset(folds[0]), n_draws=100, seed=0)
     assert res.accuracy_draws.shape == (100,)
     assert res.accuracy_mean > res.accuracy_nominal + 0.05
@@ -65,7 +65,7 @@ def test_cross_validate_pools_folds():
     from pbicrl.check import cross_validate
 
     ds = make_problem(30, labels="violations", violation_rate=0.4, seed=4).dataset
-    res = cross_validate(ds, 3, lambda d: pbicrl.infer(d, n_iterations=3000, n_chains=1, n_jobs=1, seed=2,
+    res = cross_validate(ds, 3, lambda d: pbicrl.infer(d, iterations=3000, chains=1, jobs=1, seed=2,
                                                        progress=False), n_draws=50)
     assert len(res.folds) == 3 and res.n_trajectories == ds.n_trajectories
     assert res.n_pairs == sum(f["n_pairs"] for f in res.folds)

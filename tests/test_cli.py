@@ -115,3 +115,52 @@ def test_negative_first_value_is_accepted(data_path, tmp_path, flag, value, caps
     err = capsys.readouterr().err
     assert "expected one argument" not in err
     assert code in (0, 2)  # a value the model rejects is a clean error, never an argparse failure
+
+
+# ------------------------------------------------------------------------------------------------ extensions
+def _fake_extension(tmp_path, monkeypatch, name, body):
+    (tmp_path / f"{name}.py").write_text(body)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, name, raising=False)
+
+
+def test_a_subcommand_whose_extra_is_missing_names_the_pip_install(tmp_path, monkeypatch, capsys):
+    from pbicrl import cli
+
+    _fake_extension(tmp_path, monkeypatch, "fake_ui_ext", "import starlette_missing_for_the_test\n")
+    monkeypatch.setitem(cli._EXTRAS, "starlette_missing_for_the_test", "ui")
+    monkeypatch.setattr(cli, "_EXTENSIONS", {"fake_ui_ext": ("label-fake",)})
+    assert "label-fake" in cli.build_parser().format_help()  # still listed, not dropped
+    assert main(["label-fake", "anything", "--port", "1"]) == 2
+    err = capsys.readouterr().err
+    assert 'pbicrl label-fake needs starlette_missing_for_the_test' in err and 'pip install "pbicrl[ui]"' in err
+
+
+def test_any_other_import_error_of_a_subcommand_surfaces(tmp_path, monkeypatch):
+    from pbicrl import cli
+
+    _fake_extension(tmp_path, monkeypatch, "fake_broken_ext", "from pbicrl.results import no_such_name\n")
+    monkeypatch.setattr(cli, "_EXTENSIONS", {"fake_broken_ext": ("broken",)})
+    with pytest.raises(ImportError, match="no_such_name"):
+        cli.build_parser()
+
+
+def test_every_extension_mounts_the_subcommands_it_declares():
+    from pbicrl import cli
+
+    sub = next(a for a in cli.build_parser()._subparsers._group_actions if a.dest == "command")
+    declared = {c for commands in cli._EXTENSIONS.values() for c in commands}
+    assert declared <= set(sub.choices)
+    assert {"infer", "identify", "info", "synthetic", "tune-margins", "check"} <= set(sub.choices)
+
+
+def test_deprecated_names_in_a_config_file_are_reported_once(data_path, tmp_path, capsys):
+    cfg = tmp_path / "old.toml"
+    cfg.write_text("method = \"paper\"\nn_iterations = 500\nn_chains = 1\n")
+    assert main(["infer", str(data_path), "--out", str(tmp_path / "run"), "--config", str(cfg), "--no-progress",
+                 "--json"]) == 0
+    err = capsys.readouterr().err
+    assert "pbicrl: warning: config key 'method' is deprecated and will be removed in pbicrl 0.3: use 'sampler'" in err
+    assert err.count("'n_iterations' is deprecated") == 1 and "Traceback" not in err
+    s = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert s["method"] == "paper" and s["iterations"] == 500 and s["chains"] == 1

@@ -30,7 +30,7 @@ def fake_posterior(penalty, indicators=None, *, log_likelihood=None, parameters=
 @pytest.fixture(scope="module")
 def small_post():
     prob = make_problem(15, labels="violations", violation_rate=0.4, seed=3)
-    post = pbicrl.infer(prob.dataset, n_iterations=6000, n_chains=4, seed=2, n_jobs=1, progress=False,
+    post = pbicrl.infer(prob.dataset, iterations=6000, chains=4, seed=2, jobs=1, progress=False,
                         margins=[0.5, 1.0], weight_prior=pbicrl.WeightPrior("flat", -50, 50))
     return post, prob
 
@@ -137,7 +137,7 @@ def test_posterior_summary_table_and_warnings(small_post):
 def test_short_run_is_flagged():
     pytest.importorskip("arviz")
     prob = make_problem(10, labels="violations", violation_rate=0.4, seed=4)
-    post = pbicrl.infer(prob.dataset, n_iterations=400, n_chains=4, seed=0, n_jobs=1, progress=False)
+    post = pbicrl.infer(prob.dataset, iterations=400, chains=4, seed=0, jobs=1, progress=False)
     assert any("bulk ESS < 400" in m for m in post.warnings())
     assert "warning: bulk ESS < 400" in post.table()
 

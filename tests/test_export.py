@@ -101,11 +101,58 @@ def test_explicit_pairs_with_repeats_and_unused_trajectories():
     np.testing.assert_allclose(pw.sum(), lik.from_scaled_returns(a), rtol=1e-12)
 
 
+def _grouped_by_hand(lik, a):
+    """The documented grouped split, one group term at a time, with log P_k from the grouped likelihood itself."""
+    p = lik.preferences
+    off, items, M = p.group_offsets, p.group_items, p.group_margins
+    K = off.size - 1
+    out = np.zeros(a.size)
+    for k in range(K - 1):
+        upper = items[off[k]:off[k + 1]]
+        rest = [(j, l) for l in range(k + 1, K) for j in items[off[l]:off[l + 1]]]
+        lam = np.array([np.exp(a[j] + M[k, l]) for j, l in rest])
+        log_lam = np.log(lam.sum())
+        # log P_k depends on x_i = a_i - log Lambda_k only: group k above one lower item with Lambda = e^0
+        sub = Preferences.from_groups(np.r_[np.zeros(upper.size), 1.0], [0.0])
+        x = np.r_[a[upper] - log_lam, 0.0]
+        term = PreferenceLikelihood(np.zeros((x.size, 1)), sub, np.zeros(1), kind="grouped").from_scaled_returns(x)
+        own = np.log1p(-1.0 / (1.0 + np.exp(a[upper] - log_lam)))  # log sigma(x_i)
+        out[upper] += 0.5 * term * own / own.sum()
+        for (j, _), w in zip(rest, lam / lam.sum()):
+            out[j] += 0.5 * term * w
+    return out
+
+
+@pytest.mark.parametrize("margins", [None, [0.5, 2.0]])
+def test_grouped_shares_sum_to_the_total_and_follow_the_documented_split(margins):
+    prob = make_problem(9, seed=2)
+    ds = prob.dataset
+    lik = PreferenceLikelihood.from_dataset(ds, margins=margins, likelihood="grouped")
+    rng = np.random.default_rng(3)
+    for scale in (0.1, 3.0, 300.0):  # overlapping groups up to near-certain orderings
+        a = rng.normal(0.0, scale, ds.n_trajectories) - scale * np.asarray(ds.group, dtype=float)
+        pw = export.pointwise_loglik(lik, a)
+        assert pw.shape == (ds.n_trajectories,) and np.all(pw <= 0)
+        np.testing.assert_allclose(pw.sum(), lik.from_scaled_returns(a), rtol=1e-10, atol=1e-12)
+        if scale < 100:  # the hand version's exp() overflows far apart
+            np.testing.assert_allclose(pw, _grouped_by_hand(lik, a), rtol=1e-8, atol=1e-12)
+    # the bottom group takes part too (az.loo gets no constant-zero columns from it)
+    a = rng.normal(0.0, 1.0, ds.n_trajectories)
+    assert np.all(export.pointwise_loglik(lik, a)[np.asarray(ds.group) == ds.group.max()] < 0)
+
+
+def test_grouped_shares_of_singleton_groups_are_the_pairwise_split():
+    prefs = Preferences.from_groups([1, 2], [0.7])
+    a = np.array([0.3, 1.1])
+    grouped = PreferenceLikelihood(np.ones((2, 1)), prefs, np.zeros(1), kind="grouped")
+    pairwise = PreferenceLikelihood(np.ones((2, 1)), prefs, np.zeros(1))
+    np.testing.assert_allclose(export.pointwise_loglik(grouped, a), export.pointwise_loglik(pairwise, a),
+                               rtol=1e-13)
+    np.testing.assert_allclose(export.pointwise_loglik(grouped, a), 0.5 * -np.logaddexp(0, 1.1 + 0.7 - 0.3))
+
+
 def test_kinds_and_shapes_are_checked():
     prefs = Preferences.from_groups([1, 1, 2, 2])
-    grouped = SimpleNamespace(kind="grouped", preferences=prefs, power=1.0)
-    with pytest.raises(NotImplementedError, match="grouped"):
-        export.pointwise_loglik(grouped, np.zeros(4))
     with pytest.raises(ValueError, match="unknown likelihood kind 'listwise'"):
         export.pointwise_loglik(SimpleNamespace(kind="listwise", preferences=prefs), np.zeros(4))
     lik = PreferenceLikelihood(np.ones((4, 1)), prefs, np.zeros(1))
@@ -227,25 +274,42 @@ def test_a_tempered_run_needs_its_power_recorded():
     np.testing.assert_allclose(ll.sum("trajectory").values, post.log_likelihood[:, ll["draw"].values], rtol=1e-9)
 
 
-def test_a_grouped_run_has_no_pointwise_split_yet(ranked):
-    pytest.importorskip("arviz")
-    prob, post = ranked
-    grouped = SimpleNamespace(**{k: getattr(post, k) for k in (
-        "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
-        "map_penalty_weights", "method", "settings", "seed")}, extra=dict(post.extra) | {"likelihood": "grouped"})
-    with pytest.raises(NotImplementedError, match="'grouped' likelihood"):
-        export.run_likelihood(grouped, prob.dataset)
-    with pytest.raises(NotImplementedError):
-        export.to_arviz(grouped, dataset=prob.dataset, pointwise=True)
-    with pytest.warns(PbicrlWarning, match="no per-trajectory split"):
-        data = export.to_arviz(grouped, dataset=prob.dataset)
-    assert "log_likelihood" not in _groups(data)
+def test_a_grouped_run_exports_per_trajectory_shares_for_loo(tmp_path):
+    az = pytest.importorskip("arviz")
+    prob = make_problem(12, noise=1.0, seed=5)
+    data_path = prob.dataset.save(tmp_path / "data.npz")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PbicrlWarning)
+        post = pbicrl.infer(prob.dataset, margins=[0.5, 1.0], iterations=3000, chains=2, jobs=1, seed=2,
+                            progress=False, weight_prior=pbicrl.WeightPrior("flat", -50, 50))
+    assert post.settings["likelihood"] == "grouped"
+    post.extra["data"]["path"] = str(data_path)
+    run = load_run(post.save(tmp_path / "run"))
+    lik, _ = export.run_likelihood(run, prob.dataset)  # rebuilt and checked against the recorded totals
+    assert lik.kind == "grouped"
+    data = export.to_arviz(run, pointwise_draws=100, pointwise=True)
+    ll = data["log_likelihood"]["preferences"]
+    assert ll.attrs["likelihood_kind"] == "grouped" and ll.shape == (2, 100, prob.dataset.n_trajectories)
+    np.testing.assert_allclose(ll.sum("trajectory").values, run.log_likelihood[:, ll["draw"].values],
+                               rtol=1e-9, atol=1e-9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Pareto-k warnings of short chains are not the point here
+        loo = az.loo(data)
+    assert int(_stat(loo, "n_data_points")) == prob.dataset.n_trajectories
+    assert np.isfinite(float(_stat(loo, "elpd_loo", "elpd")))
+    summ = az.summary(data)
+    assert {f"penalty[{n}]" for n in prob.dataset.feature_names} <= set(summ.index)
+    assert not any(i.startswith("penalty_weight") for i in summ.index)  # no duplicate rows
 
 
 def test_per_draw_move_and_acceptance_go_to_sample_stats(ranked):
     pytest.importorskip("arviz")
     _, post = ranked
     C, D = post.log_likelihood.shape
+    real = export.to_arviz(post, pointwise=False)["sample_stats"]  # recorded by the sampler
+    np.testing.assert_array_equal(real["move"].values, post.move)
+    np.testing.assert_array_equal(real["accepted"].values, post.accepted)
+    assert set(np.unique(post.move)) <= {0, 1, 2} and 0 < post.accepted.mean() < 1
     rng = np.random.default_rng(1)
     fake = SimpleNamespace(**{k: getattr(post, k) for k in (
         "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
@@ -257,8 +321,50 @@ def test_per_draw_move_and_acceptance_go_to_sample_stats(ranked):
     assert stats["accepted"].dtype == bool and stats["move"].attrs["flag_meanings"] == "none flip weight parameter"
     np.testing.assert_allclose(stats["acceptance_rate"].values, fake.acceptance_fraction)
     # chains that do not record them: only the per-draw totals
-    plain = export.to_arviz(post, pointwise=False)["sample_stats"]
+    bare = SimpleNamespace(**{k: getattr(post, k) for k in (
+        "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
+        "map_penalty_weights", "method", "settings", "seed")}, extra={})
+    plain = export.to_arviz(bare, pointwise=False)["sample_stats"]
     assert set(plain.data_vars) == {"log_likelihood", "lp", "log_prior"}
+
+
+@pytest.mark.parametrize("constraints", [None, [{"family": "axis_halfspace", "dims": [0], "name": "wall"}]])
+@pytest.mark.parametrize("method", ["pbicrl", "paper", "bpl"])
+def test_per_draw_moves_and_acceptances_match_the_samplers_counters(method, constraints):
+    """With every iteration kept, the per-draw records must add up to the compiled loop's own counters."""
+    prob = make_wall_problem(8, seed=0) if constraints else make_problem(8, seed=1)
+    post = _sample_run(prob.dataset, method=method, n_iterations=1500, burn_in=0, thin=1, constraints=constraints)
+    tot = post.counts.sum(axis=0)
+    mv, acc = post.move, post.accepted
+    got = [(mv == 1).sum(), (acc & (mv == 1)).sum(), (mv == 2).sum(), (acc & (mv == 2)).sum(), (mv == 3).sum(),
+           (acc & (mv == 3)).sum()]
+    assert got == [tot[0], tot[1], tot[2], tot[3], tot[5], tot[6]]
+    assert not acc[mv == 0].any()
+    np.testing.assert_array_equal(post.acceptance_fraction, acc.astype(float))  # thin 1: one iteration each
+
+
+@pytest.mark.parametrize("replay", [False, True])
+def test_thinned_per_draw_records_are_the_iterations_they_stand_for(monkeypatch, replay):
+    """A thinned chain with warm-up ending inside a chunk records what the unthinned chain did at its kept
+    iterations; both ways of finding the state before the first kept draw (storing it, or replaying the warm-up
+    when the last warm-up iteration adapts) agree. The paper sampler does not adapt, so warm-up changes nothing."""
+    from pbicrl.samplers import driver
+
+    monkeypatch.setattr(driver, "_CHUNK", 400)  # several chunk boundaries in a short chain
+    if replay:
+        monkeypatch.setattr(driver, "_last_warmup_adapts", lambda settings: True)
+    ds = make_problem(8, seed=1).dataset
+    full = _sample_run(ds, method="paper", n_iterations=3000, burn_in=0, thin=1)
+    for burn_in, thin in [(1234, 7), (1, 500), (799, 1)]:
+        part = _sample_run(ds, method="paper", n_iterations=3000, burn_in=burn_in, thin=thin)
+        its = np.arange(burn_in, 3000, thin)
+        np.testing.assert_array_equal(part.penalty_weights, full.penalty_weights[:, its])
+        np.testing.assert_array_equal(part.move, full.move[:, its])
+        np.testing.assert_array_equal(part.accepted, full.accepted[:, its])
+        acc = full.accepted.astype(float)
+        frac = np.stack([[acc[c, its[0]]] + [acc[c, its[k - 1] + 1:its[k] + 1].mean() for k in range(1, its.size)]
+                         for c in range(acc.shape[0])])
+        np.testing.assert_allclose(part.acceptance_fraction, frac)
 
 
 def test_netcdf_round_trip_keeps_the_thinned_draws(run_dir, tmp_path):
@@ -278,7 +384,7 @@ def test_arviz_1_layout_is_a_datatree(run_dir, monkeypatch, tmp_path):
     xr = pytest.importorskip("xarray")
     if not hasattr(xr, "DataTree"):
         pytest.skip("xarray without DataTree (arviz >= 1 needs it)")
-    monkeypatch.setattr(export, "_arviz_major", lambda az: 1)
+    monkeypatch.setattr(export, "arviz_major", lambda az: 1)
     tree = export.to_arviz(load_run(run_dir), pointwise_draws=10)
     assert isinstance(tree, xr.DataTree)
     assert {"posterior", "log_likelihood", "sample_stats", "constant_data"} <= set(tree.children)

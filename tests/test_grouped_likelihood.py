@@ -225,3 +225,69 @@ def test_grouped_sample_runs(violations_problem):
     lik = PreferenceLikelihood.from_dataset(violations_problem.dataset, likelihood="grouped")
     post = sample(lik, n_iterations=3000, n_chains=2, seed=0, n_jobs=1, progress=False)
     assert np.all(np.isfinite(post.log_likelihood))
+
+
+def test_many_groups_use_margin_offsets_like_the_matrix():
+    """Additive margins over many groups: the O(K) running logsumexp equals the K x K form."""
+    from pbicrl.preferences import Margins
+
+    rng = np.random.default_rng(4)
+    for K, N in ((12, 12), (30, 80), (60, 200)):
+        group = np.sort(np.concatenate([np.arange(K), rng.integers(0, K, N - K)]))
+        gaps = rng.uniform(0, 2, K - 1)
+        a = rng.normal(size=N) * 3
+        ranked = Preferences.from_groups(group, gaps)
+        assert ranked.ranked and ranked.margin_offsets.size == K
+        dense = Preferences(N, ranked.block_rows, ranked.block_row_offsets, ranked.block_cols,
+                            ranked.block_col_offsets, ranked.block_margins, np.array([0]), np.array([N - 1]),
+                            np.zeros(1), protocol="all", group_items=ranked.group_items,
+                            group_offsets=ranked.group_offsets,
+                            group_margins=Margins.from_gaps(gaps).matrix)
+        got = PreferenceLikelihood(a[:, None], ranked, np.ones(1), kind="grouped").from_scaled_returns(a)
+        expect = PreferenceLikelihood(a[:, None], dense, np.ones(1), kind="grouped").from_scaled_returns(a)
+        assert got == pytest.approx(expect, rel=1e-13)
+    # a total ranking is the Plackett-Luce probability of the order, margins shifting the lower items
+    a = rng.normal(size=15) * 2
+    o = np.cumsum(rng.uniform(0, 1, 15))
+    full = sum(a[k] - np.logaddexp.reduce(a[k:] + o[k:] - o[k]) for k in range(14))
+    got = _grouped(a, np.arange(15), np.diff(o)).from_scaled_returns(a)
+    assert got == pytest.approx(full, rel=1e-13)
+
+
+@pytest.mark.parametrize("scale", [0.3, 3.0, 40.0, 400.0])
+def test_large_groups_binned_match_the_per_item_terms(scale):
+    """Groups of >= _GB_MIN items go through binned moments: the same log P_k as the per-item integral (itself
+    checked against quadrature above), and the whole likelihood equals the sum of per-item terms."""
+    rng = np.random.default_rng(int(scale * 10))
+    n = 12_000
+    for shift in (-3.0, 2.0, 25.0):
+        a = rng.normal(size=n) * scale + rng.normal()
+        cen, mom, nb = _kernels._gb_moments(a, np.arange(n))
+        assert nb > 0  # binning pays for these spreads
+        assert _kernels._gb_logsumexp(cen, mom, nb) == pytest.approx(np.logaddexp.reduce(a), rel=1e-13)
+        log_lam = np.logaddexp.reduce(a) + shift
+        expect = _kernels.group_term(a - log_lam, np.empty((4, n)))
+        got = _kernels._gb_direct(n, -log_lam, cen, mom, nb)
+        assert got == pytest.approx(expect, rel=1e-12)
+    # three groups, two of them binned: the likelihood is the sum of the per-item terms
+    a = rng.normal(size=3 * n) * scale
+    group = np.repeat([1, 2, 3], n)
+    rng.shuffle(group)
+    lik = _grouped(a, group, [0.5, 1.0])
+    off = np.array([0.0, 0.5, 1.5])
+    members = [np.flatnonzero(group == g) for g in (1, 2, 3)]
+    lse = [np.logaddexp.reduce(a[m]) for m in members]
+    expect = 0.0
+    for k in range(2):
+        log_lam = np.logaddexp.reduce([off[l] - off[k] + lse[l] for l in range(k + 1, 3)])
+        expect += _kernels.group_term(a[members[k]] - log_lam, np.empty((4, n)))
+    assert lik.from_scaled_returns(a) == pytest.approx(expect, rel=1e-12)
+
+
+def test_large_groups_keep_the_per_item_path_when_binning_does_not_pay():
+    rng = np.random.default_rng(1)
+    n = 3000
+    a = rng.normal(size=n) * 1e4  # spread thinly over many bins
+    assert _kernels._gb_moments(a, np.arange(n))[2] == 0
+    a[5] = np.inf
+    assert _kernels._gb_moments(a, np.arange(n))[2] == 0

@@ -7,7 +7,7 @@ import pytest
 
 from pbicrl.data import Dataset
 from pbicrl.likelihood import PreferenceLikelihood, log_likelihood, log_likelihood_numpy
-from pbicrl.preferences import Preferences
+from pbicrl.preferences import PreferenceError, Preferences
 
 
 def oracle(F, group, wn, wp, c, beta, margins):
@@ -185,3 +185,122 @@ def test_wide_spread_blocks_keep_relative_precision_when_pairs_are_decided(gap):
     expect = -math.fsum(np.log1p(np.exp(z)).ravel())
     assert expect < 0.0
     assert _kernels._block_wide(a, rows, cols, 0.0) == pytest.approx(expect, rel=1e-13)
+
+
+# ------------------------------------------------------------------------------------- speed paths (issue 18)
+def _fsum_oracle(a: np.ndarray, prefs: Preferences) -> float:
+    """Every pair of ``to_pair_list`` summed exactly rounded (``math.fsum`` of ``-logaddexp``)."""
+    i, j, m = prefs.to_pair_list()
+    return -math.fsum(np.logaddexp(0.0, a[j] + m - a[i]).tolist())
+
+
+def test_softplus_shortcuts_give_the_same_bits():
+    from pbicrl._kernels import softplus
+
+    z = np.concatenate([np.linspace(-800, 800, 4001), np.linspace(-40, -35, 501), np.linspace(35, 40, 501)])
+    for v in z.tolist():
+        general = v + math.log1p(math.exp(-v)) if v > 0 else math.log1p(math.exp(v))
+        assert softplus(v) == general, v
+
+
+@pytest.mark.parametrize("scale", [0.1, 3.0, 40.0, 2000.0])
+def test_pairs_bound_is_an_upper_bound_and_tight(scale):
+    from pbicrl._kernels import pairs_loglik, pairs_loglik_bound
+
+    rng = np.random.default_rng(int(scale * 10))
+    for _ in range(20):
+        N = int(rng.integers(2, 300))
+        P = int(rng.integers(1, 400))
+        a = rng.normal(size=N) * scale
+        pi, pj = rng.integers(0, N, P), rng.integers(0, N, P)
+        pm = rng.uniform(-3, 3, P)
+        exact = pairs_loglik(a, pi, pj, pm)
+        u, slack = pairs_loglik_bound(a, pi, pj, pm)
+        assert exact <= u + slack
+        assert u - exact <= 6e-4 * P  # the tangents are at most f'' h^2 / 8 below softplus
+
+
+def _ranked_case(rng: np.random.Generator, N: int, K: int, scale: float, gaps: bool):
+    group = np.sort(np.concatenate([np.arange(K), rng.integers(0, K, N - K)]))
+    rng.shuffle(group)
+    a = rng.normal(size=N) * scale
+    prefs = Preferences.from_groups(group * 3 + 1, rng.uniform(0, 3, K - 1) if gaps else None)
+    return a, group, prefs
+
+
+@pytest.mark.parametrize("scale", [0.3, 5.0, 200.0, 1e4])
+def test_ranked_layout_matches_every_pair(scale):
+    from pbicrl.preferences import RANKED_MIN_GROUPS
+
+    rng = np.random.default_rng(int(scale))
+    for N, K in ((12, RANKED_MIN_GROUPS), (40, 25), (150, 150), (300, 40), (300, 12)):
+        a, group, prefs = _ranked_case(rng, N, K, scale, gaps=bool(rng.integers(0, 2)))
+        assert prefs.ranked and prefs.n_blocks == 0 and prefs.group_margins.shape == (K, K)
+        i, j, _ = prefs.to_pair_list()
+        assert i.size == prefs.n_pairs == sum(int(np.sum(group < g)) for g in group)
+        lik = PreferenceLikelihood(a[:, None], prefs, np.ones(1))
+        expect = _fsum_oracle(a, prefs)
+        assert lik.from_scaled_returns(a) == pytest.approx(expect, rel=1e-12)
+        assert log_likelihood_numpy(a, prefs) == pytest.approx(expect, rel=1e-12)
+
+
+def test_ranked_layout_equals_the_block_layout_and_handles_nan_and_inf():
+    from pbicrl.preferences import Margins
+
+    rng = np.random.default_rng(3)
+    a, group, prefs = _ranked_case(rng, 60, 20, 2.0, gaps=True)
+    M = Margins.from_offsets(prefs.margin_offsets).matrix
+    off, items = prefs.group_offsets, prefs.group_items
+    members = [items[off[k]:off[k + 1]] for k in range(20)]
+    kl = [(k, l) for k in range(20) for l in range(k + 1, 20)]
+    empty = np.zeros(0, np.int64)
+    blocks = Preferences(60, np.concatenate([members[k] for k, _ in kl]),
+                         np.cumsum([0] + [members[k].size for k, _ in kl]),
+                         np.concatenate([members[l] for _, l in kl]), np.cumsum([0] + [members[l].size for _, l in kl]),
+                         np.array([M[k, l] for k, l in kl]), empty, empty, np.zeros(0))  # the dense layout, by hand
+    assert not blocks.ranked and blocks.n_blocks == 20 * 19 // 2 and blocks.n_pairs == prefs.n_pairs
+    ranked = PreferenceLikelihood(a[:, None], prefs, np.ones(1)).from_scaled_returns(a)
+    dense = PreferenceLikelihood(a[:, None], blocks, np.ones(1)).from_scaled_returns(a)
+    assert ranked == pytest.approx(dense, rel=1e-13)
+    lik = PreferenceLikelihood(a[:, None], prefs, np.ones(1))
+    b = a.copy()
+    b[5] = np.nan
+    assert math.isnan(lik.from_scaled_returns(b))
+    for i in (int(np.argmin(group)), int(np.argmax(group))):  # infinitely good: finite if best, else -inf
+        b = a.copy()
+        b[i] = np.inf
+        expect = _fsum_oracle(b, prefs)
+        assert lik.from_scaled_returns(b) == (pytest.approx(expect, rel=1e-12) if np.isfinite(expect) else expect)
+
+
+def test_many_groups_need_no_k_by_k_structure():
+    from pbicrl.likelihood import pairwise_power
+    from pbicrl.preferences import Margins
+
+    K = 20_000
+    prefs = Preferences.from_groups(np.arange(K)[::-1])  # a total ranking, label 0 best
+    assert prefs.ranked and prefs.group_margins.size == 0 and prefs.margin_offsets.shape == (K,)
+    assert prefs.block_rows.size == prefs.block_cols.size == prefs.pair_i.size == 0
+    assert prefs.n_pairs == K * (K - 1) // 2
+    assert pairwise_power(prefs) == pytest.approx(K / prefs.n_pairs)
+    m = Margins.from_gaps(np.full(K - 1, 0.5))
+    assert m._matrix is None and m.n_groups == K and len(m.as_dict()) == K - 1
+    lik = PreferenceLikelihood(np.linspace(1, 0, K)[:, None] * 3, prefs, np.ones(1), kind="grouped")
+    a = lik.scaled_features_T[0]
+    full = sum(a[::-1][k] - np.logaddexp.reduce(a[::-1][k:]) for k in range(0, K - 1, 997))  # spot terms
+    assert np.isfinite(lik.from_scaled_returns(a)) and np.isfinite(full)
+
+
+def test_margins_offsets_and_additivity():
+    from pbicrl.preferences import Margins
+
+    g = Margins.from_gaps([1.0, 0.5, 2.0])
+    np.testing.assert_array_equal(g.offsets, [0.0, 1.0, 1.5, 3.5])
+    np.testing.assert_array_equal(Margins(g.matrix).offsets, g.offsets)  # a matrix that is additive is seen as such
+    assert Margins.from_dict({(1, 2): 0.0, (2, 3): 2.9, (1, 3): 6.0}, 3).offsets is None
+    np.testing.assert_array_equal(Margins.zeros(4).matrix, np.zeros((4, 4)))
+    assert Margins.from_offsets([2.0, 3.0, 5.0]).as_dict() == {"m12": 1.0, "m13": 3.0, "m23": 2.0}
+    big = Margins.from_gaps(np.arange(1.0, 70.0))
+    assert big.as_dict() == {f"m{k + 1}_{k + 2}": float(k + 1) for k in range(69)}
+    with pytest.raises(PreferenceError, match="NaN"):
+        Margins.from_offsets([0.0, np.nan])

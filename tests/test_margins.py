@@ -31,7 +31,7 @@ def test_group_means():
 
 def test_tune_picks_the_best_candidate(tmp_path):
     p = make_problem(25, labels="violations", violation_rate=0.4, seed=3)
-    res = tune_margins(p.dataset, [1, 4], gap_grid=(0.0, 1.0, 3.0), n_iterations=6000, n_chains=1, seed=0, progress=False)
+    res = tune_margins(p.dataset, [1, 4], gap_grid=(0.0, 1.0, 3.0), iterations=6000, chains=1, seed=0, progress=False)
     errs = [row["error"] if row["error"] is not None else np.inf for row in res.table]
     assert len(res.table) == 9
     assert res.error == pytest.approx(min(errs))

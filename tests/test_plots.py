@@ -24,7 +24,7 @@ def run(tmp_path_factory):
     d = tmp_path_factory.mktemp("plots")
     data = d / "data.npz"
     prob.dataset.save(data)
-    post = pbicrl.infer(prob.dataset, n_iterations=3000, n_chains=2, seed=1, n_jobs=1, progress=False,
+    post = pbicrl.infer(prob.dataset, iterations=3000, chains=2, seed=1, jobs=1, progress=False,
                         weight_prior=pbicrl.WeightPrior("flat", -50, 50))
     post.extra["data"]["path"] = str(data)
     return post.save(d / "run"), prob, post
@@ -100,7 +100,7 @@ def test_parametric_run_end_to_end(tmp_path):
 
     prob = make_wall_problem(10, seed=0)
     data = prob.dataset.save(tmp_path / "wall.npz")
-    post = pbicrl.infer(prob.dataset, n_iterations=3000, n_chains=2, seed=0, n_jobs=1, progress=False,
+    post = pbicrl.infer(prob.dataset, iterations=3000, chains=2, seed=0, jobs=1, progress=False,
                         constraints=[{"family": "axis_halfspace", "dims": [0], "name": "wall"}],
                         weight_prior=pbicrl.WeightPrior("flat", -50, 50))
     post.extra["data"]["path"] = str(data)
@@ -261,7 +261,7 @@ def test_default_resolution_and_sizes(run, tmp_path):
     assert w >= 1600 and h >= 1200
     low = {f.stem: f for f in plots.plot_run(run_dir, tmp_path / "lo", dpi=50)}
     assert _png_size(low["trace"])[0] == 11 * 50
-    with pytest.raises(ValueError, match="--dpi"):
+    with pytest.raises(ValueError, match="^dpi: expected a positive number"):
         plots.plot_run(run_dir, tmp_path / "bad", dpi=0)
     pdf = plots.plot_run(run_dir, tmp_path / "pdf", fmt="pdf")
     assert all(f.read_bytes()[:4] == b"%PDF" for f in pdf)

@@ -453,6 +453,30 @@ def test_version_1_run_directories_still_load(tmp_path, hand):
     assert diagnostics.compute(rec).to_dict()["penalty"] == hand.diagnostics().to_dict()["penalty"]
 
 
+def test_version_1_run_directories_load_as_posteriors(tmp_path, hand):
+    from pbicrl import load_run as load_posterior
+
+    run = hand.save(tmp_path / "run")
+    _as_version_1(run)
+    post = load_posterior(run, issue_warnings=False)
+    assert isinstance(post, Posterior) and post.identified is None
+    assert post.selected() == ["a"] and np.isnan(post.map_log_posterior)  # v1 could hold NaN; now unknown
+    np.testing.assert_array_equal(post.indicators, hand.indicators)
+    assert post.summary()["schema_version"] == SCHEMA_VERSION  # re-saved in the current layout
+    assert "a " in post.table()
+
+
+def test_hand_posteriors_round_trip_exactly(tmp_path):
+    ident = {"separable": True, "alpha": 0.05, "parameters": {},
+             "features": {"c": {"min_penalty": None, "unbounded": False, "identifiable": False, "reason": "constant"},
+                          "a": {"min_penalty": float("inf"), "unbounded": True, "identifiable": True}}}
+    post = quiet(make_post, IND, WP, identified=ident)
+    back = Posterior.load(post.save(tmp_path / "run"), issue_warnings=False)
+    assert back.table() == post.table()
+    assert json.dumps(back.summary(), sort_keys=True) == json.dumps(post.summary(), sort_keys=True)
+    assert back.prior_driven() == post.prior_driven() and back.not_identifiable() == post.not_identifiable()
+
+
 def test_version_2_round_trip_keeps_identification(tmp_path):
     ident = {"separable": True, "alpha": 0.05, "parameters": {},
              "features": {"c": {"min_penalty": None, "unbounded": False, "identifiable": False, "reason": "constant"}}}

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
 
-__all__ = ["floats", "margins", "nonneg_int", "pairs", "positive_float", "positive_int", "power"]
+__all__ = ["DeprecatedFlag", "floats", "margins", "nonneg_int", "pairs", "positive_float", "positive_int", "power"]
 
 
 def floats(text: str) -> list[float]:
+    """Comma- or space-separated numbers."""
     try:
         return [float(x) for x in text.replace(",", " ").split()]
     except ValueError:
@@ -22,6 +26,7 @@ def margins(text: str) -> list:
 
 
 def pairs(text: str) -> str | int:
+    """``all`` or a positive number of pairs."""
     if text == "all":
         return "all"
     try:
@@ -33,43 +38,53 @@ def pairs(text: str) -> str | int:
     return n
 
 
+def _number(text: str, cast: type, ok: Callable[[Any], bool], expected: str) -> Any:
+    """``cast(text)`` if it parses and ``ok`` accepts it; else an argparse error saying what was ``expected``."""
+    try:
+        x = cast(text.replace("_", "") if cast is int else text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+    if not ok(x):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+    return x
+
+
 def power(text: str) -> float | str:
+    """A likelihood power in (0, 1], or ``pairs``."""
     if text == "pairs":
         return text
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1] or 'pairs', got {text!r}") from None
-    if not 0 < x <= 1:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1] or 'pairs', got {text!r}")
-    return x
+    return _number(text, float, lambda x: 0 < x <= 1, "a number in (0, 1] or 'pairs'")
 
 
 def positive_int(text: str) -> int:
-    try:
-        n = int(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return n
+    """An integer >= 1 (``1_000`` allowed)."""
+    return _number(text, int, lambda n: n >= 1, "a positive integer")
 
 
 def nonneg_int(text: str) -> int:
-    try:
-        n = int(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return n
+    """An integer >= 0 (``1_000`` allowed)."""
+    return _number(text, int, lambda n: n >= 0, "a non-negative integer")
 
 
 def positive_float(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (0 < x < float("inf")):  # also rejects NaN
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return x
+    """A finite number > 0 (NaN is not)."""
+    return _number(text, float, lambda x: 0 < x < float("inf"), "a positive number")
+
+
+class DeprecatedFlag(argparse.Action):
+    """An old spelling of an option, accepted until pbicrl 0.3: stores like the new one and says so on stderr.
+
+    ``p.add_argument("--protocol", dest="pairs", action=DeprecatedFlag, new="--pairs", choices=...)``. The
+    command line does not print library warnings (:mod:`pbicrl.cli`), so the note is printed here.
+    """
+
+    def __init__(self, option_strings: Sequence[str], dest: str, *, new: str, **kwargs: Any) -> None:
+        kwargs.setdefault("help", f"deprecated: use {new}")
+        super().__init__(option_strings, dest, **kwargs)
+        self.new = new
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"pbicrl: warning: {option_string} is deprecated and will be removed in pbicrl 0.3: use {self.new}",
+              file=sys.stderr)
+        setattr(namespace, self.dest, values)

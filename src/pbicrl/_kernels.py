@@ -16,7 +16,16 @@ distant pairs from prefix sums, close ones by the same separable product within 
 precision for return differences of 1e6 and beyond at a cost close to the narrow path's. A narrow block with a
 large margin keeps the original per-pair loop (:func:`_block_softplus`).
 
-**Grouped.** :func:`grouped_loglik`; the method is described in the comment that opens its section below.
+**Explicit pairs** (the sampled protocol) go pair by pair (:func:`pairs_loglik`; ``softplus`` skips the logarithm
+where it cannot change the result). :func:`pairs_loglik_bound` is a rigorous upper bound without transcendental
+functions (piecewise-linear minorant of ``softplus``) with which the sampler rejects hopeless proposals before the
+exact evaluation, without changing a single decision.
+
+**Rankings.** :func:`ranked_loglik` sums all cross-group pairs of a ranking stored as the ranking itself
+(``Preferences.ranked``, many groups, additive margins): rows against contiguous suffixes, O(N) memory.
+
+**Grouped.** :func:`grouped_loglik`; the method is described in the comment that opens its section below, large
+groups (binned moments) in the comment before :func:`_gb_moments`.
 """
 
 from __future__ import annotations
@@ -26,8 +35,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["block_loglik", "pairs_loglik", "total_loglik", "softplus", "grouped_loglik", "group_term",
-           "loglik", "KIND_PAIRWISE", "KIND_GROUPED"]
+__all__ = ["block_loglik", "pairs_loglik", "pairs_loglik_bound", "total_loglik", "ranked_loglik", "softplus",
+           "grouped_loglik", "group_term", "loglik", "KIND_PAIRWISE", "KIND_GROUPED", "KIND_RANKED"]
 
 _CHUNK = 512  # 2**512 < max double: a flushed product of (1 + t <= 2) factors never overflows
 _SPREAD = 600.0  # returns within +-300 of the centre and margins within +-300: every factor in e^{+-600}
@@ -36,11 +45,22 @@ _MMAX = 300.0
 _FM = {"reassoc", "contract", "nsz", "arcp"}  # lets LLVM vectorise the reductions; no nnan/ninf: NaN must propagate
 
 
+_SP_BIG = 37.5  # e^{-37.5} < 2^-54: below ulp(z)/2 for z > 37.5, and log1p(y) returns y itself for y < 2^-54
+
+
 @njit(cache=True, error_model="numpy")
 def softplus(z: float) -> float:
-    """:math:`\\log(1 + e^z)`, stable for any finite ``z``."""
+    """:math:`\\log(1 + e^z)`, stable for any finite ``z``.
+
+    Beyond ``|z| > _SP_BIG`` the shortcuts give the very same bits as the general formula (``z + log1p(e^{-z})``
+    rounds to ``z``; ``log1p`` of a number below :math:`2^{-54}` is that number), without the logarithm.
+    """
     if z > 0.0:
+        if z > _SP_BIG:
+            return z
         return z + math.log1p(math.exp(-z))
+    if z < -_SP_BIG:
+        return math.exp(z)
     return math.log1p(math.exp(z))
 
 
@@ -287,7 +307,45 @@ def pairs_loglik(a: np.ndarray, pi: np.ndarray, pj: np.ndarray, pm: np.ndarray) 
     return -total
 
 
-@njit(cache=True, error_model="numpy")
+# Tangents of the convex f(x) = log1p(e^{-x}), x >= 0, one per interval [k h, (k + 1) h) touching at its midpoint:
+# a tangent of a convex function lies below it everywhere, and within its interval it is at most f'' h^2 / 8 <= 5e-4
+# below (f'' <= 1/4); beyond _TAN_H * _TAN_N, f < 1.2e-7 and the bound uses 0. So
+# softplus(z) >= max(z, 0) + max(0, c_k - s_k |z|), k = floor(|z| / h): a multiply-add and a table lookup per pair.
+_TAN_H = 0.125
+_TAN_N = 128
+_TAN_XM = (np.arange(_TAN_N) + 0.5) * _TAN_H
+_TAN_S = 1.0 / (1.0 + np.exp(_TAN_XM))  # -f'(x_k)
+_TAN_C = np.log1p(np.exp(-_TAN_XM)) + _TAN_S * _TAN_XM
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FM)
+def pairs_loglik_bound(a: np.ndarray, pi: np.ndarray, pj: np.ndarray, pm: np.ndarray) -> tuple[float, float]:
+    """An upper bound on :func:`pairs_loglik` without transcendental functions, and its rounding allowance.
+
+    Returns ``(u, slack)`` with ``pairs_loglik(a, ...) <= u + slack`` as both are computed in floating point, from
+    the piecewise-linear minorant of ``softplus`` above. ``slack`` covers the rounding of both sums (positive terms:
+    relative error below (n + 4) eps in any order, so this loop may vectorise), of the tangents, and of ``z`` (which
+    re-association may compute differently here; ``softplus`` and its minorant change by at most ``|dz|``). The
+    sampler rejects a proposal without the exact evaluation when even ``u + slack`` fails the acceptance test, so its
+    decisions, hence the chain, are those of the exact kernel.
+    """
+    total = 0.0
+    mag = 0.0
+    xlast = (_TAN_N - 0.5) * _TAN_H  # clamp before the table index (also keeps NaN in range)
+    for p in range(pi.size):
+        ai = a[pi[p]]
+        aj = a[pj[p]]
+        z = aj + pm[p] - ai
+        x = abs(z)
+        xc = x if x < xlast else xlast
+        k = int(xc * (1.0 / _TAN_H))
+        total += max(z, 0.0) + max(_TAN_C[k] - _TAN_S[k] * x, 0.0)
+        mag += abs(ai) + abs(aj) + abs(pm[p])
+    n = pi.size
+    return -total, (4.0 * n + 64.0) * 2.3e-16 * total + 4.5e-16 * mag + 1e-14 * (n + 1.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")  # no call: its ~20 array arguments cost refcounts
 def total_loglik(a: np.ndarray, brows: np.ndarray, broff: np.ndarray, bcols: np.ndarray, bcoff: np.ndarray,
                  bm: np.ndarray, pi: np.ndarray, pj: np.ndarray, pm: np.ndarray,
                  b: np.ndarray, Q: np.ndarray, Qinv: np.ndarray, E: np.ndarray, Einv: np.ndarray) -> float:
@@ -324,6 +382,100 @@ def total_loglik(a: np.ndarray, brows: np.ndarray, broff: np.ndarray, bcols: np.
     return total
 
 
+@njit(cache=True, error_model="numpy", fastmath=_FM)
+def _ranked_rows(xs: np.ndarray, Q: np.ndarray, Qinv: np.ndarray, r0: int, r1: int, j0: int) -> float:
+    """Sum of ``-softplus(xs[j] - xs[r])`` for rows ``r0 <= r < r1`` against columns ``j0 <= j < len(xs)``, given
+    ``Q = exp(xs - c)``, ``Qinv = 1/Q`` for a centre ``c`` within ``_SPREAD / 2`` of every ``xs``: the arithmetic of
+    :func:`_block_narrow` over contiguous columns."""
+    # the columns as views starting at 0: indexing xs[j0 + j] instead keeps LLVM from vectorising well (5x slower)
+    y = xs[j0:]
+    Qc = Q[j0:]
+    Qic = Qinv[j0:]
+    m = y.size
+    pos = 0.0
+    log_total = 0.0
+    prod = 1.0
+    count = 0
+    for r in range(r0, r1):
+        x = xs[r]
+        P = Q[r]
+        Pinv = Qinv[r]
+        for k0 in range(0, m, _CHUNK):
+            k1 = min(k0 + _CHUNK, m)
+            rp = 1.0
+            for j in range(k1 - k0):
+                pos += max(y[k0 + j] - x, 0.0)
+                rp *= 1.0 + min(P * Qic[k0 + j], Pinv * Qc[k0 + j])
+            if count + (k1 - k0) > _CHUNK:  # flush before the running product could overflow
+                log_total += math.log(prod)
+                prod = 1.0
+                count = 0
+            prod *= rp
+            count += k1 - k0
+    return -(pos + log_total + math.log(prod))
+
+
+_RANKED_RUN = 64  # positions per run of the wide path of ranked_loglik
+
+
+@njit(cache=True, error_model="numpy")
+def ranked_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, moff: np.ndarray, xs: np.ndarray,
+                  Q: np.ndarray, Qinv: np.ndarray) -> float:
+    """Paper Eq. 7 over every cross-group pair of a ranking (``Preferences.ranked``), without per-pair storage.
+
+    With additive margins :math:`m_{k\\ell} = o_\\ell - o_k`, the pair of :math:`i \\in G_k` over :math:`j \\in G_\\ell`
+    (:math:`k < \\ell`) is :math:`\\log\\sigma(x_i - x_j)` with :math:`x_i = a_i + o_k`. In group order the columns of
+    every row of :math:`G_k` are one contiguous range (all worse groups), so the sum is a triangle of rows against
+    suffixes: the separable product of the block kernel over contiguous memory, O(pairs) work vectorised and O(N)
+    memory, whatever the number of groups. Returns spread over more than ``_SPREAD`` nats go run by run (whole
+    groups, at least ``_RANKED_RUN`` positions) to :func:`_block_wide` against the rest of the ranking, and pair by
+    pair within a run. ``xs``, ``Q``, ``Qinv``: scratch of length N.
+    """
+    K = goff.size - 1
+    n = gitems.size
+    lo = np.inf
+    hi = -np.inf
+    for k in range(K):
+        for r in range(goff[k], goff[k + 1]):
+            v = a[gitems[r]] + moff[k]
+            xs[r] = v
+            lo = min(lo, v)
+            hi = max(hi, v)
+    if n == 0:
+        return 0.0
+    if hi - lo != hi - lo:
+        return np.nan
+    total = 0.0
+    if hi - lo <= _SPREAD:
+        c = 0.5 * (lo + hi)
+        for r in range(n):
+            Q[r] = math.exp(xs[r] - c)
+            Qinv[r] = 1.0 / Q[r]
+        for k in range(K - 1):
+            total += _ranked_rows(xs, Q, Qinv, goff[k], goff[k + 1], goff[k + 1])
+        return total
+    # Wide: cut the ranking at group boundaries into runs of >= _RANKED_RUN positions. Each run's rows against
+    # everything after the run is one block for _block_wide (sorted columns, prefix sums, exact band); the pairs
+    # between different groups inside a run go pair by pair. O((N / run) N log N + N run) instead of O(N^2).
+    idx = np.arange(n)
+    k = 0
+    while k < K - 1:
+        k1 = k + 1
+        while k1 < K and goff[k1] - goff[k] < _RANKED_RUN:
+            k1 += 1
+        r0 = goff[k]
+        r1 = goff[k1]
+        if r1 < n:
+            if hi - lo < np.inf:
+                total += _block_wide(xs, idx[r0:r1], idx[r1:], 0.0)
+            else:
+                total += _block_softplus(xs, idx[r0:r1], idx[r1:], 0.0)
+        for kk in range(k, k1 - 1):
+            total += _block_softplus(xs, idx[goff[kk]:goff[kk + 1]], idx[goff[kk + 1]:r1], 0.0)
+        k = k1
+    return total
+
+
 # ================================================================================== grouped Plackett-Luce
 #
 # Groups G_1 (best) ... G_K. With lambda_i = exp(a_i), the probability that every item of G_k ranks above every
@@ -354,6 +506,7 @@ def total_loglik(a: np.ndarray, brows: np.ndarray, broff: np.ndarray, bcols: np.
 
 KIND_PAIRWISE = 0  # PreferenceLikelihood(kind="pairwise"): paper Eq. 7 over blocks and explicit pairs
 KIND_GROUPED = 1  # PreferenceLikelihood(kind="grouped"): grouped Plackett-Luce
+KIND_RANKED = 2  # PreferenceLikelihood(kind="pairwise") over Preferences.ranked: ranked_loglik
 
 _LN2 = math.log(2.0)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -689,6 +842,249 @@ def group_term(x: np.ndarray, buf: np.ndarray) -> float:
     return _group_term_finite(y, buf)
 
 
+# ---------------------------------------------------------------------------------- large groups: binned moments
+#
+# For a group of n >= _GB_MIN items the O(n Q) node evaluations dominate (Q ~ 50 nodes and Newton steps, each an
+# exp and a log per item). Bin the returns a_i of the group on a grid of width _GB_WIDTH, centres c_b, and keep per
+# bin the moments M_bq = sum_{i in b} d_i^q / q!, d_i = a_i - c_b (|d_i| <= _GB_WIDTH / 2), q < _GB_ORDER: one pass,
+# O(n _GB_ORDER) multiply-adds and no transcendental function per item. Then, with u_b = s - log Lambda + c_b,
+#   h(s) = sum_i L(s + x_i) = sum_b sum_q L^(q)(u_b) M_bq,
+# L's Taylor coefficients at u_b from power-series arithmetic (exp of a series, log of a series: O(Q^2) per bin and
+# node, stable since e^{-v} v^q / q! <= 1), and likewise h', h''. L is analytic within pi/2 of the real axis, so the
+# truncation error per item is about (_GB_WIDTH / 2 / 1.2)^_GB_ORDER |L| < 1e-17 |L|. Bins far below (u_b < _G_TINY)
+# use L = u - v/2 in closed form (sum_i e^{d_i} = sum_q M_bq); bins far above contribute nothing. The same moments
+# give the group's logsumexp for Lambda (sum_i e^{a_i} = sum_b e^{c_b} sum_q M_bq). A node then costs O(bins Q^2)
+# instead of O(n): about 100 bins for returns spread over 10 nats. Used for the direct form (P_k not close to 1);
+# the complement form, returns spread too thinly over the grid, and non-finite returns use the per-item path.
+_GB_MIN = 2048
+_GB_WIDTH = 0.1
+_GB_ORDER = 12
+_GB_T = _GB_ORDER + 2  # Taylor coefficients needed for h'' (orders 0 .. _GB_ORDER + 1)
+_INV_FACT = np.array([1.0 / math.factorial(q) for q in range(_GB_T + 1)])
+_FACT = np.array([float(math.factorial(q)) for q in range(_GB_T + 1)])
+_INV_INT = np.array([0.0] + [1.0 / q for q in range(1, _GB_T + 1)])
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(centres, moments, n_bins)`` of one group's returns, or ``n_bins = 0`` when binning does not pay (too few
+    items per bin, non-finite returns): the caller then uses the per-item path.
+
+    ``moments`` has ``_GB_ORDER + 3`` columns: the moments, then the exclusive prefix sums over the bins below of
+    :math:`M_0`, :math:`M_0 c_b + M_1` and (as a logarithm) :math:`e^{c_b} \\sum_q M_{bq}`: the closed form of the
+    bins below ``_G_TINY`` at any node in O(1) (:func:`_gb_h`)."""
+    n = items.size
+    lo = np.inf
+    hi = -np.inf
+    for r in range(n):
+        v = a[items[r]]
+        lo = min(lo, v)
+        hi = max(hi, v)
+    if not (hi - lo < np.inf):
+        return np.zeros(0), np.zeros((0, _GB_ORDER)), 0
+    nb = int((hi - lo) / _GB_WIDTH) + 1
+    # per node a bin between _G_TINY and _G_HUGE costs about 30 items' evaluations (the others are O(1) in all)
+    if 30.0 * min(nb, (_G_HUGE - _G_TINY) / _GB_WIDTH + 2.0) > n or nb > 8 * n:
+        return np.zeros(0), np.zeros((0, _GB_ORDER + 3)), 0
+    cen = np.empty(nb)
+    for b in range(nb):
+        cen[b] = lo + (b + 0.5) * _GB_WIDTH
+    mom = np.zeros((nb, _GB_ORDER + 3))
+    inv_w = 1.0 / _GB_WIDTH
+    for r in range(n):
+        v = a[items[r]]
+        b = min(int((v - lo) * inv_w), nb - 1)
+        d = v - cen[b]
+        p = 1.0
+        for q in range(_GB_ORDER):
+            mom[b, q] += p
+            p *= d * _INV_INT[q + 1]
+    p0 = 0.0
+    p1 = 0.0
+    lpe = -np.inf
+    for b in range(nb):
+        mom[b, _GB_ORDER] = p0
+        mom[b, _GB_ORDER + 1] = p1
+        mom[b, _GB_ORDER + 2] = lpe
+        if mom[b, 0] > 0.0:
+            se = 0.0
+            for q in range(_GB_ORDER - 1, -1, -1):
+                se += mom[b, q]
+            p0 += mom[b, 0]
+            p1 += mom[b, 0] * cen[b] + mom[b, 1]
+            v = cen[b] + math.log(se)
+            hi_ = max(lpe, v)
+            lpe = hi_ + math.log1p(math.exp(min(lpe, v) - hi_))
+    return cen, mom, nb
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_logsumexp(cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
+    """:math:`\\log\\sum_i e^{a_i}` of a binned group: :math:`\\sum_i e^{d_i} = \\sum_q M_{bq}` per bin."""
+    m = -np.inf
+    for b in range(nb):
+        if mom[b, 0] > 0.0:
+            m = max(m, cen[b])
+    acc = 0.0
+    for b in range(nb):
+        if mom[b, 0] > 0.0:
+            se = 0.0
+            for q in range(_GB_ORDER - 1, -1, -1):
+                se += mom[b, q]
+            acc += math.exp(cen[b] - m) * se
+    return m + math.log(acc)
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_taylor(u: float, T: np.ndarray, f: np.ndarray) -> None:
+    """``T[q] = L^(q)(u) / q!`` for ``q < len(T)``, :math:`L(u) = \\log(1 - e^{-e^u})`, by series arithmetic:
+    :math:`e^{-v e^d} = e^{-v} \\exp(g(d))` with :math:`g = -v (e^d - 1)`, then the logarithm of
+    :math:`1 - e^{-v e^d}`."""
+    M = T.size
+    v = math.exp(u)
+    f[0] = 1.0
+    for n in range(1, M):  # f = exp(g): f_n = (1/n) sum_k k g_k f_{n-k}, k g_k = -v / (k-1)!
+        acc = 0.0
+        for k in range(1, n + 1):
+            acc -= v * _INV_FACT[k - 1] * f[n - k]
+        f[n] = acc / n
+    ev = math.exp(-v)
+    if v <= _LN2:
+        D0 = -math.expm1(-v)
+        T[0] = math.log(D0)
+    else:
+        D0 = 1.0 - ev
+        T[0] = math.log1p(-ev)
+    for n in range(1, M):  # y = log(D): y_n = (D_n - (1/n) sum_{k<n} k y_k D_{n-k}) / D_0, D_n = -e^{-v} f_n
+        acc = 0.0
+        for k in range(1, n):
+            acc += k * T[k] * (-ev * f[n - k])
+        T[n] = (-ev * f[n] - acc / n) / D0
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_h(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray,
+          f: np.ndarray) -> tuple[float, float, float]:
+    """:math:`h(s), h'(s), h''(s)` of a binned group, :math:`u_b = s + \\text{shift} + c_b`."""
+    half = 0.5 * _GB_WIDTH
+    z = s + shift
+    # bins [0, bl): u + half < _G_TINY on the whole bin, L = u - v/2 (prefix sums); bins [bh, nb): L = 0
+    bl = min(max(int(math.ceil((_G_TINY - half - z - cen[0]) / _GB_WIDTH)), 0), nb)
+    bh = min(max(int(math.floor((_G_HUGE + half - z - cen[0]) / _GB_WIDTH)) + 1, bl), nb)
+    if bl < nb:
+        n0, s1, lse_ = mom[bl, _GB_ORDER], mom[bl, _GB_ORDER + 1], mom[bl, _GB_ORDER + 2]
+    else:  # every bin below: the prefix sums through the last one
+        last = nb - 1
+        n0 = mom[last, _GB_ORDER] + mom[last, 0]
+        s1 = mom[last, _GB_ORDER + 1] + mom[last, 0] * cen[last] + mom[last, 1]
+        se = 0.0
+        for q in range(_GB_ORDER - 1, -1, -1):
+            se += mom[last, q]
+        v = cen[last] + math.log(se) if se > 0.0 else -np.inf
+        lp = mom[last, _GB_ORDER + 2]
+        hi_ = max(lp, v)
+        lse_ = hi_ + math.log1p(math.exp(min(lp, v) - hi_)) if hi_ > -np.inf else -np.inf
+    hv = 0.5 * math.exp(z + lse_)  # sum over those items of v / 2 (each v < e^{_G_TINY})
+    h = n0 * z + s1 - hv
+    h1 = n0 - hv
+    h2 = -hv
+    for b in range(bl, bh):
+        if mom[b, 0] == 0.0:
+            continue
+        _pl_taylor(z + cen[b], T, f)  # between _G_TINY and _G_HUGE: L's Taylor series about the bin centre
+        for q in range(_GB_ORDER - 1, -1, -1):
+            mq = mom[b, q] * _FACT[q]  # sum_i d_i^q
+            h += T[q] * mq
+            h1 += (q + 1) * T[q + 1] * mq
+            h2 += (q + 1) * (q + 2) * T[q + 2] * mq
+    return h, h1, h2
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
+    """:math:`\\log P_k` by the direct form on binned moments (:func:`_pl_mode` and :func:`_pl_integral` with
+    :math:`h` from :func:`_gb_h`), or NaN when the direct form is not the right one (``P_k`` close to 1)."""
+    T = np.empty(_GB_T)
+    f = np.empty(_GB_T)
+    lo = -1.0
+    hi = math.log(n + 1.0) + 1.0
+    s = 0.5 * math.log(n + 1.0)
+    d2 = -1.0
+    for _ in range(200):
+        h, h1, h2 = _gb_h(s, shift, cen, mom, nb, T, f)
+        es = math.exp(s)
+        d1 = 1.0 - es + h1
+        d2 = -es + h2
+        if d1 > 0.0:
+            lo = s
+        else:
+            hi = s
+        newton = d2 < 0.0 and d1 == d1
+        sn = s - d1 / d2 if newton else 0.5 * (lo + hi)
+        if not (lo < sn < hi):
+            newton = False
+            sn = 0.5 * (lo + hi)
+        if (newton and abs(sn - s) * math.sqrt(-d2) < 1e-3) or hi - lo <= 1e-12 * (1.0 + abs(s)):
+            break
+        s = sn
+    s0 = s
+    f0 = s0 - math.exp(s0) + _gb_h(s0, shift, cen, mom, nb, T, f)[0]
+    sig = 1.0 / math.sqrt(-d2)
+    if not (f0 + math.log(sig) + _LOG_SQRT_2PI < _G_SWITCH):
+        return np.nan
+    beta, gamma = _G_MAP_DIRECT
+    H = min(_G_STEP, _G_STEP_MAX / sig)
+    acc = 1.0
+    even = 1.0
+    kr = 0
+    kl = 0
+    for side in range(2):
+        direction = 1.0 if side == 0 else -1.0
+        k = 1
+        while k <= _G_MAX_NODES:
+            e = math.exp(_gb_node(direction * k * H, s0, sig, f0, beta, gamma, shift, cen, mom, nb, T, f))
+            acc += e
+            if k % 2 == 0:
+                even += e
+            if e < _G_EDROP:
+                break
+            k += 1
+        if side == 0:
+            kr = k
+        else:
+            kl = k
+    prev = H * acc
+    if abs(prev - 2.0 * H * even) > _G_ACCEPT * prev:
+        h_ = H
+        n_new = kl + kr
+        for _ in range(_G_MAX_LEVELS):
+            h_ *= 0.5
+            for i in range(n_new):
+                acc += math.exp(_gb_node(-kl * H + (2 * i + 1) * h_, s0, sig, f0, beta, gamma, shift, cen, mom, nb,
+                                         T, f))
+            cur = h_ * acc
+            if abs(cur - prev) <= _G_ACCEPT * cur:
+                prev = cur
+                break
+            prev = cur
+            n_new *= 2
+    lp = f0 + math.log(sig * prev)
+    return lp if lp <= math.log(0.9) else np.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_node(u: float, s0: float, sig: float, f0: float, beta: float, gamma: float, shift: float, cen: np.ndarray,
+             mom: np.ndarray, nb: int, T: np.ndarray, f: np.ndarray) -> float:
+    """:func:`_pl_node` (direct form) with :math:`h` from binned moments."""
+    eg = math.exp(-gamma * u)
+    delta = sig * ((1.0 - beta) * u + beta * (1.0 - eg) / gamma)
+    if abs(delta) > _G_WINDOW:
+        return -np.inf
+    s = s0 + delta
+    hh = _gb_h(s, shift, cen, mom, nb, T, f)[0]
+    return s - math.exp(s) + hh - f0 + math.log((1.0 - beta) + beta * eg)
+
+
 @njit(cache=True, error_model="numpy")
 def _logsumexp_at(a: np.ndarray, idx: np.ndarray) -> float:
     m = -np.inf
@@ -703,47 +1099,88 @@ def _logsumexp_at(a: np.ndarray, idx: np.ndarray) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.ndarray, gbuf: np.ndarray) -> float:
+def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.ndarray, gbuf: np.ndarray,
+                   moff: np.ndarray) -> float:
     """Grouped Plackett-Luce log-likelihood :math:`\\sum_{k<K} \\log P_k` for scaled returns ``a``.
 
     ``gitems[goff[k]:goff[k+1]]`` are the trajectories of group ``k`` (best first), ``gmarg`` the K x K margins
-    :math:`m_{k\\ell}` (upper triangle), ``gbuf`` scratch of shape (4, >= max(largest group, K)).
+    :math:`m_{k\\ell}` (upper triangle) or, when empty, ``moff`` the offsets of additive margins
+    (:math:`m_{k\\ell} = o_\\ell - o_k`), ``gbuf`` scratch of shape (4, >= max(largest group, K)).
     :math:`\\log\\Lambda_k = \\mathrm{logsumexp}_{\\ell > k}(m_{k\\ell} + \\mathrm{logsumexp}_{j \\in G_\\ell} a_j)`:
-    O(N + K^2) for all terms, then O(n_k Q) per group.
+    O(N + K^2) for all terms with a matrix, O(N + K) with offsets (a running logsumexp over the worse groups,
+    :math:`\\log\\Lambda_k = -o_k + \\mathrm{logsumexp}_{\\ell > k}(o_\\ell + \\ldots)`), then O(n_k Q) per group.
     """
     K = goff.size - 1
     lse = gbuf[3]
+    # large groups: binned moments (see above), computed once and used for Lambda and for the group's own term
+    slot = np.full(K, -1, np.int64)
+    cens = [np.zeros(0)]
+    moms = [np.zeros((0, _GB_ORDER))]
+    for k in range(K):
+        if goff[k + 1] - goff[k] >= _GB_MIN:
+            cen, mom, nb = _gb_moments(a, gitems[goff[k]:goff[k + 1]])
+            if nb > 0:
+                slot[k] = len(cens)
+                cens.append(cen)
+                moms.append(mom)
     for l in range(1, K):
-        lse[l] = _logsumexp_at(a, gitems[goff[l]:goff[l + 1]])
+        if slot[l] >= 0:
+            lse[l] = _gb_logsumexp(cens[slot[l]], moms[slot[l]], cens[slot[l]].size)
+        else:
+            lse[l] = _logsumexp_at(a, gitems[goff[l]:goff[l + 1]])
+    additive = gmarg.shape[0] == 0
+    if additive:  # lse[l] becomes logsumexp over l' >= l of (o_l' + lse_l')
+        run = -np.inf
+        for l in range(K - 1, 0, -1):
+            v = moff[l] + lse[l]
+            if v != v or run != run:
+                run = np.nan
+            elif run == -np.inf or v == np.inf:
+                run = v
+            elif v > -np.inf and run < np.inf:
+                hi = max(run, v)
+                run = hi + math.log1p(math.exp(min(run, v) - hi))
+            lse[l] = run
     total = 0.0
     x = gbuf[2]
     for k in range(K - 1):
-        m = -np.inf
-        for l in range(k + 1, K):
-            m = max(m, lse[l] + gmarg[k, l])
-        if m == -np.inf or m == np.inf or m != m:
-            log_lam = m if m == m else np.nan
+        if additive:
+            log_lam = lse[k + 1] - moff[k]
         else:
-            acc = 0.0
+            m = -np.inf
             for l in range(k + 1, K):
-                acc += math.exp(lse[l] + gmarg[k, l] - m)
-            log_lam = m + math.log(acc)
+                m = max(m, lse[l] + gmarg[k, l])
+            if m == -np.inf or m == np.inf or m != m:
+                log_lam = m if m == m else np.nan
+            else:
+                acc = 0.0
+                for l in range(k + 1, K):
+                    acc += math.exp(lse[l] + gmarg[k, l] - m)
+                log_lam = m + math.log(acc)
         n = goff[k + 1] - goff[k]
+        if slot[k] >= 0 and log_lam == log_lam and abs(log_lam) < np.inf:
+            term = _gb_direct(n, -log_lam, cens[slot[k]], moms[slot[k]], cens[slot[k]].size)
+            if term == term:
+                total += term
+                continue
         for i in range(n):
             x[i] = a[gitems[goff[k] + i]] - log_lam
         total += group_term(x[:n], gbuf)
     return total
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")  # no call: its ~20 array arguments cost refcounts
 def loglik(a: np.ndarray, kind: int, brows: np.ndarray, broff: np.ndarray, bcols: np.ndarray, bcoff: np.ndarray,
            bm: np.ndarray, pi: np.ndarray, pj: np.ndarray, pm: np.ndarray, b: np.ndarray, Q: np.ndarray,
            Qinv: np.ndarray, E: np.ndarray, Einv: np.ndarray, gitems: np.ndarray, goff: np.ndarray,
-           gmarg: np.ndarray, gbuf: np.ndarray) -> float:
-    """The log-likelihood of either kind: ``loglik(a, *PreferenceLikelihood.kernel_args())``.
+           gmarg: np.ndarray, gbuf: np.ndarray, moff: np.ndarray) -> float:
+    """The log-likelihood of any kind: ``loglik(a, *PreferenceLikelihood.kernel_args())``.
 
-    ``kind`` is ``KIND_PAIRWISE`` (:func:`total_loglik`, unchanged) or ``KIND_GROUPED`` (:func:`grouped_loglik`).
+    ``kind`` is ``KIND_PAIRWISE`` (:func:`total_loglik`, unchanged), ``KIND_GROUPED`` (:func:`grouped_loglik`) or
+    ``KIND_RANKED`` (:func:`ranked_loglik`, with ``b``, ``Q``, ``Qinv`` of length N as its scratch).
     """
     if kind == KIND_GROUPED:
-        return grouped_loglik(a, gitems, goff, gmarg, gbuf)
+        return grouped_loglik(a, gitems, goff, gmarg, gbuf, moff)
+    if kind == KIND_RANKED:
+        return ranked_loglik(a, gitems, goff, moff, b, Q, Qinv)
     return total_loglik(a, brows, broff, bcols, bcoff, bm, pi, pj, pm, b, Q, Qinv, E, Einv)

@@ -1,13 +1,15 @@
-"""High-level entry point: ``pbicrl.infer(dataset, ...)`` from a dataset to a :class:`~pbicrl.results.Posterior`."""
+"""High-level entry points: ``pbicrl.infer(dataset, ...)`` from a dataset to a :class:`~pbicrl.results.Posterior`,
+and ``pbicrl.load_run(run_dir)`` from a saved run back to one."""
 
 from __future__ import annotations
 
-from typing import Sequence
+import os
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pbicrl.config import ConfigError, InferConfig
+from pbicrl.config import DEPRECATED_NAMES, ConfigError, InferConfig, canonical_names
 from pbicrl.constraints import Constraint, ConstraintSet, constraint_from_dict
 from pbicrl.data import Dataset
 from pbicrl.likelihood import PreferenceLikelihood
@@ -16,7 +18,27 @@ from pbicrl.priors import IndicatorPrior, WeightPrior
 from pbicrl.results import Posterior
 from pbicrl.samplers import SamplerSettings, sample
 
-__all__ = ["infer", "infer_from_config", "resolve_candidates", "weight_prior_from_config"]
+__all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config"]
+
+
+def load_run(run_dir: str | os.PathLike[str], *, issue_warnings: bool = True) -> Posterior:
+    """Read a run directory (``pbicrl infer --out``, :meth:`Posterior.save`) back into a :class:`Posterior`.
+
+    The same object a fresh :func:`infer` returns: :meth:`~Posterior.table`, :meth:`~Posterior.to_arviz`,
+    :meth:`~Posterior.summary`, :meth:`~Posterior.point_estimate`, :meth:`~Posterior.save`, ... give what they
+    gave before saving. See :meth:`Posterior.load`.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such directory, or ``summary.json`` / ``chains.npz`` missing.
+    pbicrl.runs.RunError
+        A malformed file or a ``summary.json`` written by a newer pbicrl (the message names the file).
+    """
+    post = Posterior.load(run_dir, issue_warnings=False)
+    if issue_warnings:
+        post.emit_warnings(stacklevel=3)  # attributed to the caller of load_run
+    return post
 
 
 def resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None,
@@ -45,45 +67,63 @@ def resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None,
     return tuple(out)
 
 
+_D = InferConfig()  # the defaults of every setting (InferConfig is their one source)
+_PRIOR_SETTINGS = ("prior", "prior_low", "prior_high", "prior_mean", "prior_scale", "prior_abs_scale", "prior_df",
+                   "penalty_sign")
+
+
 def infer(
     dataset: Dataset,
     *,
-    method: str = "pbicrl",
-    likelihood: str = "grouped",
+    sampler: str = _D.sampler,
+    likelihood: str = _D.likelihood,
     nominal_weights: ArrayLike | None = None,
     margins: Margins | ArrayLike | None = None,
-    beta: float = 1.0,
+    beta: float = _D.beta,
     power: float | str | None = None,
     pairs: str | int | None = None,
-    pairs_seed: int = 0,
-    n_iterations: int = 400_000,
+    pairs_seed: int = _D.pairs_seed,
+    iterations: int = _D.iterations,
     burn_in: int | None = None,
     thin: int | None = None,
-    n_chains: int = 4,
-    seed: int = 0,
-    n_jobs: int | None = None,
-    sigma: float = 0.1,
-    f_s: int = 4,
-    p_flip: float = 0.5,
-    init_scale: float = 1.0,
-    init_range: Sequence[float] = (-30.0, -1.0),
+    chains: int = _D.chains,
+    seed: int = _D.seed,
+    jobs: int | None = None,
+    sigma: float = _D.sigma,
+    f_s: int = _D.f_s,
+    p_flip: float = _D.p_flip,
+    init_scale: float = _D.init_scale,
+    init_range: Sequence[float] = tuple(_D.init_range),
+    prior: str = _D.prior,
+    prior_low: float | None = None,
+    prior_high: float | None = None,
+    prior_mean: float = _D.prior_mean,
+    prior_scale: float = _D.prior_scale,
+    prior_abs_scale: float | None = None,
+    prior_df: float = _D.prior_df,
+    penalty_sign: str = _D.penalty_sign,
+    indicator_pi: float = _D.indicator_pi,
     weight_prior: WeightPrior | None = None,
     indicator_prior: IndicatorPrior | None = None,
     candidates: Sequence[str | int] | None = None,
     constraints: Sequence[Constraint | dict] | None = None,
-    sigma_theta: float = 0.5,
+    sigma_theta: float = _D.sigma_theta,
     p_theta: float | None = None,
-    alpha: float = 0.05,
+    alpha: float = _D.alpha,
     progress: bool = True,
+    **deprecated: Any,
 ) -> Posterior:
     r"""Infer constraints from a grouped dataset.
+
+    Every setting has the name, meaning and default of the :class:`~pbicrl.config.InferConfig` field (the
+    command line's option and the TOML key of the same name); :func:`infer_from_config` takes the record.
 
     Parameters
     ----------
     dataset : Dataset
         Ranked demonstrations (group 1 = best).
-    method : {"pbicrl", "paper", "authors", "bpl"}
-        Sampler, see :mod:`pbicrl.samplers.kernels`.
+    sampler : {"pbicrl", "paper", "authors", "bpl"}
+        MCMC sampler, see :mod:`pbicrl.samplers.kernels` (formerly ``method``).
     likelihood : {"grouped", "pairwise"}
         ``grouped`` (default): the exact grouped Plackett-Luce likelihood, calibrated for grouped rankings.
         ``pairwise``: the paper's Eq. 7 over cross-group pairs (for reproduction; overconfident on grouped
@@ -100,11 +140,17 @@ def infer(
     pairs : "all" or int, optional
         ``pairwise`` only: every cross-group pair (default, paper Eq. 7) or ``pairs`` random pairs per group
         pair (seeded by ``pairs_seed``).
-    n_iterations, burn_in, thin, n_chains, seed, n_jobs, sigma, f_s, p_flip, init_scale, init_range
-        Sampler settings (:class:`~pbicrl.samplers.SamplerSettings`).
+    iterations, burn_in, thin, chains, seed, jobs, sigma, f_s, p_flip, init_scale, init_range
+        Sampler settings (:class:`~pbicrl.samplers.SamplerSettings`); ``iterations`` per chain (formerly
+        ``n_iterations``), ``chains`` independent chains (formerly ``n_chains``), ``jobs`` worker processes
+        (formerly ``n_jobs``; the draws do not depend on it).
+    prior, prior_low, prior_high, prior_mean, prior_scale, prior_abs_scale, prior_df, penalty_sign
+        The prior on each penalty weight (default: half-Student-t with 3 degrees of freedom on (-inf, 0], scale
+        :math:`2.5/(\beta\,\mathrm{sd}_j)` per feature), see :class:`~pbicrl.priors.WeightPrior`.
+    indicator_pi : float
+        Bernoulli prior probability :math:`\pi` of each constraint (default 1/2).
     weight_prior, indicator_prior
-        Priors (default: half-Student-t with 3 degrees of freedom on (-inf, 0], scale
-        :math:`2.5/(\beta\,\mathrm{sd}_j)` per feature; Bernoulli(1/2)). See :class:`~pbicrl.priors.WeightPrior`.
+        The priors as objects instead of the settings above (giving both is an error).
     candidates : names or indices, optional
         Features that may be constraints (default: all known features; with parametric ``constraints``,
         only those, as in Algorithm 2).
@@ -117,11 +163,28 @@ def infer(
         result is in ``summary.json`` under ``identified``.
     progress : bool
         Progress bar.
+    **deprecated
+        ``method``, ``n_iterations``, ``n_chains``, ``n_jobs``: the old names of ``sampler``, ``iterations``,
+        ``chains``, ``jobs``, accepted until pbicrl 0.3 with a :class:`~pbicrl.errors.PbicrlWarning`.
 
     Returns
     -------
     Posterior
     """
+    if deprecated:
+        unknown = sorted(k for k in deprecated if k not in DEPRECATED_NAMES)
+        if unknown:
+            raise TypeError(f"infer() got an unexpected keyword argument {unknown[0]!r}")
+        given = {"sampler": sampler, "iterations": iterations, "chains": chains, "jobs": jobs}
+        for old, new in DEPRECATED_NAMES.items():
+            if old in deprecated and given[new] != getattr(_D, new):
+                raise ConfigError(f"infer() argument '{old}': deprecated name of '{new}', which is given too; "
+                                  f"keep only '{new}'")
+        renamed = canonical_names(deprecated, where="infer() argument", stacklevel=2)
+        sampler = renamed.get("sampler", sampler)
+        iterations = renamed.get("iterations", iterations)
+        chains = renamed.get("chains", chains)
+        jobs = renamed.get("jobs", jobs)
     if likelihood not in ("grouped", "pairwise"):
         raise ConfigError(f"likelihood: expected 'grouped' or 'pairwise', got {likelihood!r}")
     if likelihood == "grouped":
@@ -138,6 +201,16 @@ def infer(
             pairs = int(pairs)
         except (TypeError, ValueError):
             raise ConfigError(f"pairs: expected 'all' or a number of pairs per group pair, got {pairs!r}") from None
+    prior_settings = {"prior": prior, "prior_low": prior_low, "prior_high": prior_high, "prior_mean": prior_mean,
+                      "prior_scale": prior_scale, "prior_abs_scale": prior_abs_scale, "prior_df": prior_df,
+                      "penalty_sign": penalty_sign}
+    if weight_prior is not None:
+        changed = [k for k, v in prior_settings.items() if v != getattr(_D, k)]
+        if changed:
+            raise ConfigError(f"weight_prior: given together with {', '.join(changed)}; give the prior either as a "
+                              "WeightPrior or as settings")
+    if indicator_prior is not None and indicator_pi != _D.indicator_pi:
+        raise ConfigError("indicator_prior: given together with indicator_pi; give one of them")
     _check_groups(dataset)
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,
                                             nominal_weights=nominal_weights, beta=beta, power=power,
@@ -146,18 +219,18 @@ def infer(
     if constraints:
         cset = ConstraintSet(tuple(c if isinstance(c, Constraint) else constraint_from_dict(c) for c in constraints),
                              dataset)
-    wprior = weight_prior if weight_prior is not None else WeightPrior()
+    wprior = weight_prior if weight_prior is not None else _weight_prior(**prior_settings)
     settings = SamplerSettings(
-        method=method, n_iterations=int(n_iterations), burn_in=burn_in, thin=thin, sigma=sigma, f_s=f_s,
+        method=sampler, n_iterations=int(iterations), burn_in=burn_in, thin=thin, sigma=sigma, f_s=f_s,
         p_flip=p_flip, init_scale=init_scale, init_range=tuple(init_range), weight_prior=wprior,
-        indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(),
+        indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
         candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta)
     from pbicrl.identify import identify
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
-                     candidates=candidates, penalty_sign=wprior.sign if method not in ("paper", "authors") else "any",
+                     candidates=candidates, penalty_sign=wprior.sign if sampler not in ("paper", "authors") else "any",
                      constraints=cset)
-    post = sample(lik, settings, n_chains=n_chains, seed=seed, n_jobs=n_jobs, progress=progress,
+    post = sample(lik, settings, n_chains=chains, seed=seed, n_jobs=jobs, progress=progress,
                   feature_names=dataset.feature_names, constraints=cset, identified=ident)
     K = dataset.n_groups
     m = Margins.parse(margins, K)
@@ -178,19 +251,19 @@ def _check_groups(dataset: Dataset) -> None:
 
 
 def infer_from_config(dataset: Dataset, config: InferConfig, *, progress: bool = True) -> Posterior:
-    """:func:`infer` with an :class:`~pbicrl.config.InferConfig`."""
-    c = config
-    return infer(
-        dataset, method=c.sampler, likelihood=c.likelihood, nominal_weights=c.nominal_weights, margins=c.margins,
-        beta=c.beta, power=c.power, pairs=c.pairs, pairs_seed=c.pairs_seed, n_iterations=c.iterations,
-        burn_in=c.burn_in, thin=c.thin, n_chains=c.chains, seed=c.seed, n_jobs=c.jobs, sigma=c.sigma, f_s=c.f_s,
-        p_flip=c.p_flip, init_scale=c.init_scale, init_range=tuple(c.init_range), weight_prior=weight_prior_from_config(c),
-        indicator_prior=IndicatorPrior(c.indicator_pi), candidates=c.candidates, constraints=c.constraints,
-        sigma_theta=c.sigma_theta, p_theta=c.p_theta, alpha=c.alpha, progress=progress)
+    """:func:`infer` with an :class:`~pbicrl.config.InferConfig` (the same names: every field is an argument)."""
+    values = config.to_dict()
+    values["init_range"] = tuple(values["init_range"])
+    return infer(dataset, **values, progress=progress)
 
 
 def weight_prior_from_config(c: InferConfig) -> WeightPrior:
     """The :class:`~pbicrl.priors.WeightPrior` a config describes (``prior``, ``prior_*``, ``penalty_sign``)."""
-    return WeightPrior(c.prior, c.prior_low, c.prior_high, mean=c.prior_mean,  # type: ignore[arg-type]
-                       scale=c.prior_abs_scale, sign=c.penalty_sign, df=c.prior_df,  # type: ignore[arg-type]
-                       prior_scale=c.prior_scale)
+    return _weight_prior(**{k: getattr(c, k) for k in _PRIOR_SETTINGS})
+
+
+def _weight_prior(*, prior: str, prior_low: float | None, prior_high: float | None, prior_mean: float,
+                  prior_scale: float, prior_abs_scale: float | None, prior_df: float, penalty_sign: str) -> WeightPrior:
+    return WeightPrior(prior, prior_low, prior_high, mean=prior_mean,  # type: ignore[arg-type]
+                       scale=prior_abs_scale, sign=penalty_sign, df=prior_df,  # type: ignore[arg-type]
+                       prior_scale=prior_scale)

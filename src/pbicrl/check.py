@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl.data import Dataset
+from pbicrl.runs import constraint_set_of
 
 __all__ = ["PredictiveCheck", "cross_validate", "kfold_split", "merge_folds", "pair_accuracy", "predictive_check"]
 
@@ -135,16 +136,6 @@ def _posterior_draws(post: Any, n_draws: int, rng: np.random.Generator) -> tuple
     return eff[np.sort(take)], theta[np.sort(take)]
 
 
-def _constraint_set(post: Any, dataset: Dataset) -> Any:
-    if not post.parameter_names:
-        return None
-    from pbicrl.constraints import ConstraintSet, constraint_from_dict
-
-    specs = post.settings.get("constraints") or []
-    return ConstraintSet(tuple(constraint_from_dict({k: v for k, v in s.items() if k != "resolved_bounds"})
-                               for s in specs), dataset)
-
-
 def predictive_check(post: Any, heldout: Dataset, *, n_draws: int = 400, seed: int = 0) -> PredictiveCheck:
     """Score posterior draws on held-out grouped demonstrations.
 
@@ -185,7 +176,7 @@ def predictive_check(post: Any, heldout: Dataset, *, n_draws: int = 400, seed: i
     wn = np.asarray(post.settings.get("nominal_weights") or np.zeros(d_known), dtype=np.float64)
     rng = np.random.default_rng(seed)
     eff, theta = _posterior_draws(post, n_draws, rng)
-    cs = _constraint_set(post, heldout)
+    cs = constraint_set_of(post, heldout)
     F = heldout.mean_features
     base = F @ wn
     g = heldout.group

@@ -7,6 +7,7 @@ User errors (bad data, options or config) end with one line ``pbicrl: error: ...
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import re
@@ -24,7 +25,10 @@ from pbicrl._argtypes import pairs as _pairs
 from pbicrl._argtypes import positive_float as _positive_float
 from pbicrl._argtypes import positive_int as _positive_int
 from pbicrl._argtypes import power as _power
-from pbicrl.data import resolve_dataset_path as _resolve_data
+from pbicrl.config import InferConfig
+from pbicrl.data import resolve_dataset_path
+
+_D = InferConfig()  # the defaults the help texts state (InferConfig is their one source)
 
 __all__ = ["build_parser", "main"]
 
@@ -37,12 +41,12 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, help="TOML file with the same settings (options below override it)")
     p.add_argument("--nominal-weights", type=_floats, help="known nominal weights w_n, e.g. '1,0,0,-1'")
     p.add_argument("--margins", type=_margins, help="K-1 consecutive gaps '0,2.9' or a matrix '0,0,6;0,0,2.9;0,0,0'")
-    p.add_argument("--beta", type=_positive_float, help="inverse temperature (default 1)")
+    p.add_argument("--beta", type=_positive_float, help=f"inverse temperature (default {_D.beta:g})")
     p.add_argument("--candidates", help="comma-separated features that may be constraints (default: all)")
     p.add_argument("--penalty-sign", choices=["negative", "any"],
                    help="negative (default): penalties penalise, w_p <= 0; any: both signs")
     p.add_argument("--alpha", type=_positive_float,
-                   help="identifiability level: pairs ordered with probability >= 1 - alpha (default 0.05)")
+                   help=f"identifiability level: pairs ordered with probability >= 1 - alpha (default {_D.alpha:g})")
 
 
 def _add_infer(sub: Any) -> None:
@@ -57,25 +61,27 @@ def _add_infer(sub: Any) -> None:
     p.add_argument("--pairs", type=_pairs, help="pairwise only: 'all' cross-group pairs (default) or N per group pair")
     p.add_argument("--sampler", choices=["pbicrl", "paper", "authors", "bpl"],
                    help="pbicrl (default), paper (Algorithm 1), authors (the authors' code), bpl")
-    p.add_argument("--iterations", type=_positive_int, help="iterations per chain (default 400000)")
+    p.add_argument("--iterations", type=_positive_int, help=f"iterations per chain (default {_D.iterations})")
     p.add_argument("--burn-in", type=_nonneg_int, help="warm-up iterations (default: a quarter)")
     p.add_argument("--thin", type=_positive_int, help="keep every n-th draw (default: <= 10000 draws per chain)")
-    p.add_argument("--chains", type=_positive_int, help="independent chains (default 4)")
+    p.add_argument("--chains", type=_positive_int, help=f"independent chains (default {_D.chains})")
     p.add_argument("--jobs", type=_positive_int, help="worker processes (default: one per core)")
-    p.add_argument("--seed", type=_nonneg_int, help="random seed (default 0)")
-    p.add_argument("--sigma", type=_positive_float, help="random-walk step (default 0.1; adapted for pbicrl)")
-    p.add_argument("--fs", dest="f_s", type=_positive_int, help="paper sampler: sampling frequency f_s (default 4)")
-    p.add_argument("--p-flip", type=float, help="pbicrl sampler: probability of a flip move (default 0.5)")
+    p.add_argument("--seed", type=_nonneg_int, help=f"random seed (default {_D.seed})")
+    p.add_argument("--sigma", type=_positive_float, help=f"random-walk step (default {_D.sigma:g}; adapted for pbicrl)")
+    p.add_argument("--fs", dest="f_s", type=_positive_int,
+                   help=f"paper sampler: sampling frequency f_s (default {_D.f_s})")
+    p.add_argument("--p-flip", type=float, help=f"pbicrl sampler: probability of a flip move (default {_D.p_flip:g})")
     p.add_argument("--prior", choices=["student-t", "flat", "normal"],
                    help="prior on penalty weights (default student-t: half-t on (-inf, 0], scale-aware)")
     p.add_argument("--prior-bounds", type=_floats,
                    help="bounds of the weight prior 'low,high' (default: -1000,1000 for flat, none otherwise)")
     p.add_argument("--prior-scale", type=_positive_float,
-                   help="student-t/normal scale in units of 1/(beta*sd_j) of each feature (default 2.5)")
-    p.add_argument("--prior-df", type=_positive_float, help="degrees of freedom of the student-t prior (default 3)")
-    p.add_argument("--indicator-pi", type=float, help="Bernoulli prior P(c_j = 1) (default 0.5)")
-    p.add_argument("--init-range", type=_floats,
-                   help="authors sampler: initial penalties uniform on 'low,high' (default -30,-1)")
+                   help=f"student-t/normal scale in units of 1/(beta*sd_j) of each feature (default {_D.prior_scale:g})")
+    p.add_argument("--prior-df", type=_positive_float,
+                   help=f"degrees of freedom of the student-t prior (default {_D.prior_df:g})")
+    p.add_argument("--indicator-pi", type=float, help=f"Bernoulli prior P(c_j = 1) (default {_D.indicator_pi:g})")
+    p.add_argument("--init-range", type=_floats, help="authors sampler: initial penalties uniform on 'low,high' "
+                   f"(default {','.join(f'{x:g}' for x in _D.init_range)})")
     p.add_argument("--check", type=_positive_int, metavar="K",
                    help="also run a stratified K-fold posterior predictive check (K extra fits; check.json)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
@@ -114,8 +120,8 @@ def _cmd_infer(args: argparse.Namespace) -> int:
     from pbicrl.results import check_out_dir
 
     cfg = _config_from_args(args)
-    data = _resolve_data(args.data)
-    check_out_dir(args.out, overwrite=args.overwrite)  # before sampling, not after it
+    data = resolve_dataset_path(args.data)
+    check_out_dir(args.out, overwrite=args.overwrite, claim=True)  # before sampling; claimed until written
     if args.out.resolve() == data.resolve():
         raise FileExistsError(f"out: {args.out} is the input dataset; choose another directory")
     ds = load_dataset(data)
@@ -157,7 +163,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from pbicrl.identify import identify
 
     cfg = _config_from_args(args)
-    ds = load_dataset(_resolve_data(args.data))
+    ds = load_dataset(resolve_dataset_path(args.data))
     cset = None
     if cfg.constraints:
         from pbicrl.constraints import ConstraintSet, constraint_from_dict
@@ -183,7 +189,7 @@ def _add_info(sub: Any) -> None:
 def _cmd_info(args: argparse.Namespace) -> int:
     from pbicrl.data import load_dataset
 
-    ds = load_dataset(_resolve_data(args.data))
+    ds = load_dataset(resolve_dataset_path(args.data), allow_unlabelled=True)  # pools and labelling files too
     print(ds)
     print(f"lengths: min {ds.lengths.min()}, mean {ds.lengths.mean():.1f}, max {ds.lengths.max()}")
     print(f"nominal weights: {None if ds.nominal_weights is None else ds.nominal_weights.tolist()}")
@@ -244,8 +250,8 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     cfg = cfg.updated(iterations=args.iterations, chains=args.chains, sampler=args.sampler, seed=args.seed)
     from pbicrl.results import check_out_dir
 
-    check_out_dir(args.out, overwrite=args.overwrite)
-    data = _resolve_data(args.data)
+    check_out_dir(args.out, overwrite=args.overwrite, claim=True)
+    data = resolve_dataset_path(args.data)
     ds = load_dataset(data)
     from dataclasses import replace
 
@@ -286,13 +292,13 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from pbicrl.runs import load_run
 
     run = load_run(args.run)
-    res = predictive_check(run, load_dataset(_resolve_data(args.data)), n_draws=args.draws, seed=args.seed)
+    res = predictive_check(run, load_dataset(resolve_dataset_path(args.data)), n_draws=args.draws, seed=args.seed)
     print(json.dumps(res.to_dict(), indent=2) if args.json else res.table())
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from pbicrl import __version__
+    from pbicrl._version import __version__
 
     parser = argparse.ArgumentParser(prog="pbicrl", description="Bayesian constraint inference from ranked demonstrations")
     parser.add_argument("--version", action="version", version=f"pbicrl {__version__}")
@@ -303,19 +309,51 @@ def build_parser() -> argparse.ArgumentParser:
     _add_synthetic(sub)
     _add_tune(sub)
     _add_check(sub)
-    for mount in _EXTENSIONS:
-        try:
-            module = __import__(mount, fromlist=["add_subcommands"])
-        except ImportError:
-            continue
-        module.add_subcommands(sub)
+    for mount, commands in _EXTENSIONS.items():
+        _mount(sub, mount, commands)
     return parser
 
 
-# Subcommands contributed by other subpackages; each module exposes add_subcommands(subparsers) and must not
-# import optional dependencies at module level.
-_EXTENSIONS: tuple[str, ...] = ("pbicrl.experiments.sweep", "pbicrl.experiments.reproduce", "pbicrl.cli_posterior",
-                                "pbicrl.cli_envs")
+# Subcommands contributed by other subpackages (module -> the subcommands it adds); each module exposes
+# add_subcommands(subparsers) and must not import optional dependencies at module level.
+_EXTENSIONS: dict[str, tuple[str, ...]] = {
+    "pbicrl.experiments.sweep": ("sweep",), "pbicrl.experiments.reproduce": ("reproduce",),
+    "pbicrl.cli_posterior": ("diagnose", "plot", "export", "import"), "pbicrl.cli_envs": ("envs",),
+    "pbicrl.safe_rl": ("train-safe",), "pbicrl.ui.cli": ("label", "suggest"),
+}
+
+# Top-level modules of optional dependencies -> the extra that installs them (pyproject.toml).
+_EXTRAS: dict[str, str] = {
+    "matplotlib": "plot", "gymnasium": "envs", "mujoco": "envs", "gymnasium_robotics": "envs", "torch": "rl",
+    "stable_baselines3": "rl", "minari": "minari", "ray": "ray", "arviz": "diag", "h5netcdf": "diag",
+    "h5py": "diag", "pandas": "diag", "pyarrow": "io", "starlette": "ui", "uvicorn": "ui",
+}
+
+
+def _mount(sub: Any, module_name: str, commands: Sequence[str]) -> None:
+    """Add a module's subcommands; if an optional dependency is missing, commands that say which extra to install.
+
+    Any other ImportError (a broken pbicrl module) is raised: a subcommand is never dropped silently.
+    """
+    import importlib
+
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        missing = (exc.name or "").partition(".")[0]
+        extra = _EXTRAS.get(missing)
+        if extra is None:
+            raise
+        for command in commands:
+            p = sub.add_parser(command, help=f'(needs pip install "pbicrl[{extra}]")')
+            p.add_argument("args", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+            p.set_defaults(func=functools.partial(_needs_extra, command, missing, extra))
+        return
+    module.add_subcommands(sub)
+
+
+def _needs_extra(command: str, missing: str, extra: str, args: argparse.Namespace) -> int:
+    raise ImportError(f'pbicrl {command} needs {missing}, which is not installed: pip install "pbicrl[{extra}]"')
 
 
 _NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d|inf|nan)", re.IGNORECASE)
@@ -342,14 +380,33 @@ def _join_negative_values(argv: Sequence[str]) -> list[str]:
     return out
 
 
+def _one_line_warnings(show: Any) -> Any:
+    """``warnings.showwarning`` that prints a :class:`~pbicrl.errors.PbicrlWarning` as ``pbicrl: warning: ...``."""
+    from pbicrl.errors import PbicrlWarning
+
+    def one_line(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
+                 line: str | None = None) -> None:
+        if issubclass(category, PbicrlWarning):
+            print(f"pbicrl: warning: {message}", file=sys.stderr)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    one_line.pbicrl_one_line = True  # type: ignore[attr-defined]
+    return one_line
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     import warnings
 
     from pbicrl.errors import PbicrlWarning
 
     # The commands print the library's warnings themselves ("warning: ..." after the table); Python's own
-    # print of the same PbicrlWarning would repeat each one with a source line.
+    # print of the same PbicrlWarning would repeat each one with a source line. Deprecated setting names (in a
+    # --config or sweep file) are printed by no command: those are shown, once each, as one line.
     warnings.simplefilter("ignore", PbicrlWarning)
+    warnings.filterwarnings("default", message=r".* is deprecated and will be removed in pbicrl", category=PbicrlWarning)
+    if not getattr(warnings.showwarning, "pbicrl_one_line", False):
+        warnings.showwarning = _one_line_warnings(warnings.showwarning)
     parser = build_parser()
     args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
     try:
@@ -358,6 +415,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if os.environ.get("PBICRL_DEBUG"):
             raise
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        from pbicrl.results import OutputExistsError
+
+        if isinstance(exc, OutputExistsError):  # the library says overwrite=True; the command line has a flag
+            msg = f"{exc.field}: {exc.path} already exists; choose another {exc.kind} or pass --overwrite"
         print(f"pbicrl: error: {msg}", file=sys.stderr)
         return 2
     except MemoryError:
@@ -366,6 +427,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("pbicrl: interrupted; no output written", file=sys.stderr)
         return 130
+    finally:
+        from pbicrl.results import release_out_dir
+
+        release_out_dir()  # output directories the command claimed and did not write (it failed)
 
 
 if __name__ == "__main__":

@@ -15,9 +15,10 @@ whose arrays fit in memory, its ``summary.json`` a JSON object with the expected
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -47,10 +48,25 @@ def _refuse_inputs(out: Path, inputs: Sequence[Path | None], flag: str) -> None:
 
 
 def load_run_checked(run_dir: str | os.PathLike[str]) -> Any:
-    """:func:`pbicrl.runs.load_run` (which checks the files first; any malformation is a ``RunError``)."""
+    """:func:`pbicrl.runs.load_run` (which checks the files first; any malformation is a ``RunError``).
+
+    The commands read runs as :class:`~pbicrl.runs.RunRecord` (no warnings issued on reading; ``pbicrl.load_run``
+    gives a full :class:`~pbicrl.results.Posterior`)."""
     from pbicrl.runs import load_run
 
     return load_run(run_dir)
+
+
+@contextlib.contextmanager
+def _flag_wording(flags: dict[str, str]) -> Iterator[None]:
+    """Reword a library error that names an argument (``"truth: ..."``) with the command's flag (``--truth``)."""
+    try:
+        yield
+    except (ValueError, FileNotFoundError) as exc:
+        field, sep, rest = str(exc).partition(": ")
+        if not sep or field not in flags or type(exc) not in (ValueError, FileNotFoundError):
+            raise
+        raise type(exc)(f"{flags[field]}: {rest}") from None
 
 
 # ---------------------------------------------------------------------------------------------- diagnose
@@ -73,7 +89,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     from pbicrl.plots import parse_truth, plot_run
 
     run = load_run_checked(args.run)
-    truth = parse_truth(args.truth, run.feature_names, tuple(getattr(run, "parameter_names", None) or ()))
+    with _flag_wording({"truth": "--truth", "fmt": "--format", "dpi": "--dpi"}):
+        truth = parse_truth(args.truth, run.feature_names, tuple(getattr(run, "parameter_names", None) or ()))
     if args.data is not None:
         from pbicrl.data import resolve_dataset_path
 
@@ -81,7 +98,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     if args.out is not None:
         if args.out.exists() and not args.out.is_dir():
             raise ValueError(f"--out: {args.out} is a file; plots go into a directory")
-    files = plot_run(run, args.out, dataset=args.data, truth=truth, fmt=args.format, dpi=args.dpi)
+    with _flag_wording({"truth": "--truth", "fmt": "--format", "dpi": "--dpi"}):
+        files = plot_run(run, args.out, dataset=args.data, truth=truth, fmt=args.format, dpi=args.dpi)
     for f in files:
         print(f"wrote {f}")
     if not any(f.stem == "rewards" for f in files):
@@ -98,11 +116,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise ValueError(f"--netcdf: {out} is a directory; give a file name such as {out / 'posterior.nc'}")
     _refuse_inputs(out, [args.run, Path(args.run) / "summary.json", Path(args.run) / "chains.npz"], "--netcdf")
+    from pbicrl._atomic import OutputExistsError
     from pbicrl.data import resolve_dataset_path
 
-    path = to_netcdf(run, out, overwrite=args.overwrite,
-                     dataset=resolve_dataset_path(args.data) if args.data else None,
-                     pointwise=False if args.no_pointwise else "auto", pointwise_draws=args.pointwise_draws)
+    try:
+        path = to_netcdf(run, out, overwrite=args.overwrite,
+                         dataset=resolve_dataset_path(args.data) if args.data else None,
+                         pointwise=False if args.no_pointwise else "auto", pointwise_draws=args.pointwise_draws)
+    except OutputExistsError as exc:  # worded for Python (overwrite=True); here the flag is --overwrite
+        raise FileExistsError(f"--netcdf: {exc.path} already exists; choose another file or pass --overwrite") from None
     print(f"wrote {path}")
     return 0
 
@@ -200,7 +222,8 @@ def add_subcommands(sub: Any) -> None:
                        description="Write the posterior as ArviZ InferenceData (arviz < 1) or DataTree (arviz >= 1) "
                                    "in NetCDF: posterior indicator, penalty (c*w_p; penalty_weight for the paper "
                                    "sampler only), parameter; log_likelihood = each trajectory's share, for az.loo; "
-                                   "sample_stats = total log-likelihood, lp, log_prior.")
+                                   "sample_stats = total log-likelihood, lp, log_prior, per-draw move and "
+                                   "acceptance.")
     p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
     p.add_argument("--netcdf", type=Path, help="output .nc file (default RUN_DIR/posterior.nc)")
     p.add_argument("--data", type=Path, help="dataset of the run (default: the one recorded in the run)")

@@ -1,22 +1,39 @@
-"""Inference configuration: one validated record built from a TOML file and/or command-line options."""
+"""Inference settings: one record, :class:`InferConfig`, and the names every entry point uses.
+
+:class:`InferConfig` is the single source of the names, types and defaults of the inference settings: the
+command line (``pbicrl infer --iterations``), TOML files (``iterations = ...``), :func:`pbicrl.infer`
+(``iterations=...``), sweeps (``[base] iterations = ...``) and ``pbicrl reproduce`` all use its field names.
+Old names (:data:`DEPRECATED_NAMES`, e.g. ``method`` for ``sampler``) are accepted until pbicrl 0.3 with a
+:class:`~pbicrl.errors.PbicrlWarning`.
+"""
 
 from __future__ import annotations
 
+import copy
 import tomllib
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Mapping
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["InferConfig", "ConfigError", "load_config"]
+__all__ = ["InferConfig", "ConfigError", "DEPRECATED_NAMES", "canonical_names", "check_setting", "load_config"]
 
 
 class ConfigError(ValueError):
     """Invalid configuration; the message names the key."""
 
 
+def _setting(default: Any, *types: type, minimum: int | None = None) -> Any:
+    """A field of :class:`InferConfig` with the types a file may give it and, for integers, the least value."""
+    meta = {"types": types, "minimum": minimum}
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
 @dataclass(frozen=True)
 class InferConfig:
-    r"""Settings of ``pbicrl infer`` (same names in the TOML file, top level or under ``[infer]``).
+    r"""Settings of ``pbicrl infer`` (same names in the TOML file, all at the top level or all under ``[infer]``).
 
     Attributes
     ----------
@@ -30,8 +47,13 @@ class InferConfig:
         ``pairwise`` only: likelihood power in (0, 1]; 1 (default) = the paper's likelihood.
     pairs : "all" or int or None
         ``pairwise`` only: all cross-group pairs (default), or that many random pairs per group pair.
-    sampler : "pbicrl" | "paper" | "bpl"
+    pairs_seed : int
+        Seed of the random pairs (``pairs`` a number).
+    sampler : "pbicrl" | "paper" | "authors" | "bpl"
+        The MCMC sampler (formerly ``method``).
     iterations, burn_in, thin, chains, seed, jobs : int
+        Iterations per chain (formerly ``n_iterations``), warm-up, thinning, independent chains (formerly
+        ``n_chains``), random seed, worker processes (formerly ``n_jobs``; never changes the draws).
     sigma, f_s, p_flip, init_scale : sampler settings
     init_range : [low, high]
         ``authors`` sampler: initial penalties uniform on this range (the authors' code: [-30, -1] for point
@@ -39,8 +61,9 @@ class InferConfig:
     likelihood : "grouped" | "pairwise"
         ``grouped`` (default): the exact grouped Plackett-Luce likelihood, calibrated for grouped rankings;
         ``pairwise``: the paper's Eq. 7 over cross-group pairs (``pairs`` and ``power`` apply to it only).
-    prior : "student_t" | "flat" | "normal"
-        Prior on each penalty weight (default ``student_t``: half-Student-t on (-inf, 0]).
+    prior : "student_t" | "flat" | "normal" | "improper"
+        Prior on each penalty weight (default ``student_t``: half-Student-t on (-inf, 0]); ``improper`` is the
+        paper's flat prior without bounds (Algorithms 1 and 3).
     prior_scale : float
         ``student_t``/``normal``: scale in units of :math:`1/(\beta\,\mathrm{sd}_j)`, sd_j the spread of
         feature j's per-trajectory mean (default 2.5), so rescaling a feature rescales only its penalty.
@@ -68,85 +91,219 @@ class InferConfig:
         Parameter step and parameter-move probability.
     """
 
-    nominal_weights: list[float] | None = None
-    margins: list | None = None
-    beta: float = 1.0
-    power: float | str | None = None
-    pairs: str | int | None = None
-    pairs_seed: int = 0
-    sampler: str = "pbicrl"
-    iterations: int = 400_000
-    burn_in: int | None = None
-    thin: int | None = None
-    chains: int = 4
-    seed: int = 0
-    jobs: int | None = None
-    sigma: float = 0.1
-    f_s: int = 4
-    p_flip: float = 0.5
-    init_scale: float = 1.0
-    init_range: list = field(default_factory=lambda: [-30.0, -1.0])
-    likelihood: str = "grouped"
-    prior: str = "student_t"
-    prior_low: float | None = None
-    prior_high: float | None = None
-    prior_mean: float = 0.0
-    prior_scale: float = 2.5
-    prior_abs_scale: float | None = None
-    prior_df: float = 3.0
-    penalty_sign: str = "negative"
-    alpha: float = 0.05
-    indicator_pi: float = 0.5
-    candidates: list | None = None
-    constraints: list | None = None
-    sigma_theta: float = 0.5
-    p_theta: float | None = None
+    nominal_weights: list[float] | None = _setting(None, list)
+    margins: list | None = _setting(None, list)
+    beta: float = _setting(1.0, int, float)
+    power: float | str | None = _setting(None, int, float, str)
+    pairs: str | int | None = _setting(None, str, int)
+    pairs_seed: int = _setting(0, int, minimum=0)
+    sampler: str = _setting("pbicrl", str)
+    iterations: int = _setting(400_000, int, minimum=1)
+    burn_in: int | None = _setting(None, int, minimum=0)
+    thin: int | None = _setting(None, int, minimum=1)
+    chains: int = _setting(4, int, minimum=1)
+    seed: int = _setting(0, int, minimum=0)
+    jobs: int | None = _setting(None, int, minimum=1)
+    sigma: float = _setting(0.1, int, float)
+    f_s: int = _setting(4, int, minimum=1)
+    p_flip: float = _setting(0.5, int, float)
+    init_scale: float = _setting(1.0, int, float)
+    init_range: list = _setting([-30.0, -1.0], list)
+    likelihood: str = _setting("grouped", str)
+    prior: str = _setting("student_t", str)
+    prior_low: float | None = _setting(None, int, float)
+    prior_high: float | None = _setting(None, int, float)
+    prior_mean: float = _setting(0.0, int, float)
+    prior_scale: float = _setting(2.5, int, float)
+    prior_abs_scale: float | None = _setting(None, int, float)
+    prior_df: float = _setting(3.0, int, float)
+    penalty_sign: str = _setting("negative", str)
+    alpha: float = _setting(0.05, int, float)
+    indicator_pi: float = _setting(0.5, int, float)
+    candidates: list | None = _setting(None, list)
+    constraints: list | None = _setting(None, list)
+    sigma_theta: float = _setting(0.5, int, float)
+    p_theta: float | None = _setting(None, int, float)
 
     def updated(self, **values: Any) -> "InferConfig":
-        """Copy with the non-``None`` values replaced (command-line options over the file)."""
+        """Copy with the non-``None`` values replaced (command-line options over the file).
+
+        Deprecated names (:data:`DEPRECATED_NAMES`) are accepted with a :class:`~pbicrl.errors.PbicrlWarning`.
+        """
+        values = canonical_names(values, where="setting", stacklevel=3)
         return replace(self, **{k: v for k, v in values.items() if v is not None})
 
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """Every setting and its default value (fresh lists: safe to modify)."""
+        return {f.name: (f.default_factory() if f.default is MISSING else f.default)  # type: ignore[misc]
+                for f in fields(cls)}
 
-_TYPES: dict[str, tuple[type, ...]] = {
-    "beta": (int, float), "power": (int, float, str), "sigma": (int, float), "p_flip": (int, float), "init_scale": (int, float),
-    "prior_low": (int, float), "prior_high": (int, float), "prior_mean": (int, float), "prior_scale": (int, float),
-    "prior_abs_scale": (int, float), "prior_df": (int, float), "penalty_sign": (str,), "likelihood": (str,),
-    "alpha": (int, float),
-    "indicator_pi": (int, float), "iterations": (int,), "burn_in": (int,), "thin": (int,), "chains": (int,),
-    "seed": (int,), "jobs": (int,), "f_s": (int,), "pairs_seed": (int,), "sampler": (str,), "prior": (str,),
-    "pairs": (str, int), "nominal_weights": (list,), "margins": (list,), "candidates": (list,),
-    "constraints": (list,), "init_range": (list,), "sigma_theta": (int, float), "p_theta": (int, float),
-}
+    @classmethod
+    def setting_types(cls) -> dict[str, tuple[type, ...]]:
+        """Every setting and the Python types a file or mapping may give it (``bool`` is never a number)."""
+        return {f.name: f.metadata["types"] for f in fields(cls)}
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any], *, where: str = "config") -> "InferConfig":
+        """Validated settings from a mapping (a TOML table, a sweep's task config).
+
+        Parameters
+        ----------
+        values : mapping
+            Setting names (:data:`DEPRECATED_NAMES` are renamed with a :class:`~pbicrl.errors.PbicrlWarning`)
+            and values; missing settings keep their defaults. ``None`` stands for the default.
+        where : str
+            How messages name the source: ``"<where> key 'iterations': ..."``.
+
+        Raises
+        ------
+        ConfigError
+            Unknown keys, wrong types (``true`` is not a number), integers below their minimum, malformed
+            ``[[constraints]]`` tables; the message names the key.
+        """
+        values = canonical_names(values, where=f"{where} key", stacklevel=3)
+        out = {}
+        for key, value in values.items():
+            check_setting(key, value, where=where)
+            if value is not None:
+                out[key] = value
+        if out.get("constraints"):
+            from pbicrl.constraints import constraint_from_dict
+
+            for k, spec in enumerate(out["constraints"]):
+                if not isinstance(spec, dict):
+                    raise ConfigError(f"{where} key 'constraints': expected [[constraints]] tables")
+                _check_dims(spec, k, where)
+                constraint_from_dict(spec)  # validate now: family, dims, direction, bounds
+        return cls(**out)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every setting by name (a plain copy; what :meth:`from_mapping` reads back)."""
+        return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)}
+
+
+DEPRECATED_NAMES: dict[str, str] = {"method": "sampler", "n_iterations": "iterations", "n_chains": "chains",
+                                    "n_jobs": "jobs"}
+"""Old names of settings, accepted until pbicrl 0.3 with a :class:`~pbicrl.errors.PbicrlWarning`: old -> new."""
+
+
+def canonical_names(values: Mapping[str, Any], *, where: str = "setting", stacklevel: int = 2) -> dict[str, Any]:
+    """``values`` with deprecated setting names (:data:`DEPRECATED_NAMES`) replaced by the current ones.
+
+    Each old name issues a :class:`~pbicrl.errors.PbicrlWarning` naming the new one (``stacklevel`` as for
+    :func:`warnings.warn`, counted from the caller of this function).
+
+    Raises
+    ------
+    ConfigError
+        Both an old name and its new one are given.
+    """
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        new = DEPRECATED_NAMES.get(key)
+        if new is None:
+            out[key] = value
+            continue
+        if new in values:
+            raise ConfigError(f"{where} '{key}': deprecated name of '{new}', which is given too; keep only '{new}'")
+        from pbicrl.errors import warn
+
+        warn(f"{where} '{key}' is deprecated and will be removed in pbicrl 0.3: use '{new}'",
+             stacklevel=stacklevel + 1)
+        out[new] = value
+    return out
+
+
+def check_setting(key: str, value: Any, *, where: str = "config") -> None:
+    """Check one setting's name, type and range (``None`` passes: it stands for the default).
+
+    Raises
+    ------
+    ConfigError
+        ``"<where> key '<key>': ..."``: unknown key, wrong type, integer below its minimum.
+    """
+    spec = _FIELDS.get(key)
+    if spec is None:
+        raise ConfigError(f"{where} key '{key}': unknown; known keys are {', '.join(sorted(_FIELDS))}")
+    if value is None:
+        return
+    types = spec.metadata["types"]
+    if isinstance(value, bool) or not isinstance(value, types):
+        raise ConfigError(f"{where} key '{key}': expected {' or '.join(t.__name__ for t in types)}, got {value!r}")
+    low = spec.metadata["minimum"]
+    if low is not None and value < low:
+        raise ConfigError(f"{where} key '{key}': expected an integer >= {low}, got {value}")
+
+
+_FIELDS = {f.name: f for f in fields(InferConfig)}
 
 
 def load_config(path: str | Path) -> InferConfig:
-    """Read a TOML config; unknown keys and wrong types are errors that name the key."""
+    """Read a TOML config; every problem is a :class:`ConfigError` that names the key or table.
+
+    The settings are either all at the top level or all in an ``[infer]`` table (with ``[[constraints]]`` /
+    ``[[infer.constraints]]`` tables for parametric constraints); a file with both, or with any other table,
+    is refused rather than partly ignored.
+
+    Raises
+    ------
+    ConfigError
+        Missing or unreadable file, invalid TOML, unknown keys or tables, wrong types, integers out of range,
+        malformed constraint ``dims`` (not non-negative integers, repeated).
+    """
     path = Path(path)
     if not path.exists():
-        raise ConfigError(f"--config: {path}: no such file")
+        raise ConfigError(f"config: {path}: no such file")
+    if not path.is_file():
+        raise ConfigError(f"config: {path} is {'a directory' if path.is_dir() else 'not a regular file'}, "
+                          "not a TOML file")
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"--config: {path} is not valid TOML ({exc})") from None
-    table = raw.get("infer", raw)
-    if not isinstance(table, dict):
-        raise ConfigError("--config: [infer] must be a table")
-    known = {f.name for f in fields(InferConfig)}
-    values = {}
-    for key, value in table.items():
-        if key == "infer":
-            continue
-        if key not in known:
-            raise ConfigError(f"config key '{key}': unknown; known keys are {', '.join(sorted(known))}")
-        types = _TYPES.get(key, (object,))
-        if isinstance(value, bool) or not isinstance(value, types):
-            raise ConfigError(f"config key '{key}': expected {' or '.join(t.__name__ for t in types)}, got {value!r}")
-        values[key] = value
-    if "constraints" in values:
-        from pbicrl.constraints import constraint_from_dict
+        raise ConfigError(f"config: {path} is not valid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"config: {path} is not UTF-8 text (not a TOML file)") from None
+    except OSError as exc:
+        raise ConfigError(f"config: {path} cannot be read ({exc.strerror or exc})") from None
+    known = set(_FIELDS) | set(DEPRECATED_NAMES)
+    if "infer" in raw:
+        table = raw["infer"]
+        if not isinstance(table, dict):
+            raise ConfigError("config: 'infer' must be a table ([infer])")
+        beside = sorted(k for k in raw if k != "infer")
+        if beside:
+            where = ", ".join(_toml_name(k, raw[k]) for k in beside)
+            raise ConfigError(f"config: {where} outside the [infer] table; put every setting under [infer] "
+                              "or none (settings outside it would be ignored)")
+    else:
+        table = raw
+    tables = sorted(k for k, v in table.items() if isinstance(v, dict) and k not in known)
+    if tables:
+        raise ConfigError(f"config: unknown table(s) {', '.join(f'[{t}]' for t in tables)}; the settings are keys "
+                          "at the top level or under [infer], constraints are [[constraints]] tables")
+    return InferConfig.from_mapping(table, where="config")
 
-        for spec in values["constraints"]:
-            if not isinstance(spec, dict):
-                raise ConfigError("config key 'constraints': expected [[constraints]] tables")
-            constraint_from_dict(spec)  # validate now: family, dims, direction, bounds
-    return InferConfig(**values)
+
+def _toml_name(key: str, value: Any) -> str:
+    """How the file spells ``key``: ``[table]``, ``[[array of tables]]`` or ``'key'``."""
+    if isinstance(value, dict):
+        return f"[{key}]"
+    if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        return f"[[{key}]]"
+    return f"'{key}'"
+
+
+def _check_dims(spec: dict[str, Any], k: int, where: str = "config") -> None:
+    """``dims`` of a constraint table: distinct non-negative integers (TOML ``true`` or ``0.5`` are not)."""
+    if "dims" not in spec:
+        return  # constraint_from_dict says it is required
+    dims = spec["dims"]
+    label = f"constraint {spec.get('name', k + 1)!r}"
+    items = dims if isinstance(dims, list) else [dims]
+    bad = [d for d in items if isinstance(d, bool) or not isinstance(d, int) or d < 0]
+    if bad or not items:
+        raise ConfigError(f"{where}: {label}: 'dims' must be state column indices (non-negative integers), "
+                          f"got {dims!r}")
+    if len(set(items)) != len(items):
+        raise ConfigError(f"{where}: {label}: 'dims' repeats a column ({dims!r}); each state column once")

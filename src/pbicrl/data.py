@@ -17,7 +17,16 @@ field               shape        meaning
 ``feature_names``   (d,) str     optional feature names
 ``nominal_weights`` (d,) float   optional known nominal weights :math:`w_n`
 ``group_names``     (K,) str     optional names of the groups, best first (e.g. good, bad, very bad)
+``gap_relation``    (K-1,) float optional relative sizes of the gaps between consecutive groups
+``skipped``         (N,) bool    optional: trajectories the labeller chose not to rank (group 0)
+``env_id``          () str       optional environment the demonstrations come from (``point_mass``, ...)
 =================== ============ ==========================================================
+
+Group 0 means *unlabelled*: a pool of demonstrations still to be ranked, or a labelling session in
+progress (``pbicrl label``). Such files load only with ``load_dataset(path, allow_unlabelled=True)``;
+inference refuses them until every trajectory is labelled, and :meth:`Dataset.labelled` keeps the
+labelled ones. ``gap_relation`` is what ``pbicrl tune-margins --relation`` takes (``[1, 4]``: the gap
+between groups 2 and 3 is about four times the gap between groups 1 and 2).
 
 Reading is defensive: only regular files are opened (a device or a named pipe is refused, never read),
 every array header is checked before any data is read (an array larger than the archive holds, or than
@@ -31,6 +40,7 @@ Files are written atomically through temporaries named ``.<target>.tmp-<host>.<p
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import shutil
@@ -58,8 +68,10 @@ MAX_GROUPS = 1000
 group pair a block of comparisons), so ranking thousands of single-trajectory groups is out of reach:
 K = 20,000 would need a 3 GiB margin matrix alone."""
 
-_FIELDS = ("features", "offsets", "group", "states", "actions", "feature_names", "nominal_weights", "group_names")
+_FIELDS = ("features", "offsets", "group", "states", "actions", "feature_names", "nominal_weights", "group_names",
+           "gap_relation", "skipped", "env_id")
 _REQUIRED = ("features", "offsets", "group")
+_MAX_ENV_ID = 200  # characters: an environment id, not a document
 _MAX_HEADER = 10_000  # bytes of an .npy header, as numpy's own default: a larger one is hostile or corrupt
 
 
@@ -516,6 +528,72 @@ def _as_vector(name: str, value: ArrayLike, d: int) -> NDArray[np.float64]:
     return vec
 
 
+def _as_gap_relation(value: ArrayLike, n_groups: int) -> NDArray[np.float64] | None:
+    """``K - 1`` positive finite relative gap sizes (``None`` for an empty array)."""
+    try:
+        raw = np.asarray(value)
+        if raw.dtype.kind == "c":
+            raise DatasetError(f"gap_relation: complex values (dtype {raw.dtype}) are not supported")
+        rel = np.asarray(raw, dtype=np.float64)
+    except DatasetError:
+        raise
+    except (TypeError, ValueError):
+        raise DatasetError("gap_relation: values must be numbers (relative sizes of the gaps between "
+                           "consecutive groups, e.g. [1, 4])") from None
+    if rel.ndim > 1:
+        raise DatasetError(f"gap_relation: expected a 1-D array of K-1 numbers, got shape {rel.shape}")
+    rel = rel.reshape(-1)
+    if rel.size == 0:
+        return None
+    if n_groups < 2:
+        raise DatasetError(f"gap_relation: relates the gaps between consecutive groups, but the dataset defines "
+                           f"{n_groups} group{'s' if n_groups != 1 else ''}")
+    if rel.size != n_groups - 1:
+        raise DatasetError(f"gap_relation: {n_groups} groups need {n_groups - 1} relative gap sizes (one per pair "
+                           f"of consecutive groups), got {rel.size}")
+    if not np.all(np.isfinite(rel)) or np.any(rel <= 0):
+        raise DatasetError(f"gap_relation: relative gap sizes must be positive finite numbers, got {rel.tolist()}")
+    return rel
+
+
+def _as_skipped(value: ArrayLike, n: int) -> NDArray[np.bool_]:
+    """One flag per trajectory; booleans, or integers that are 0 or 1."""
+    raw = np.asarray(value)
+    if raw.shape != (n,):
+        raise DatasetError(f"skipped: expected shape ({n},) (one flag per trajectory), got {raw.shape}")
+    if raw.dtype == np.bool_:
+        return raw.copy()
+    if raw.dtype.kind in "iu" or (raw.dtype.kind == "f" and np.all(np.isfinite(raw))):
+        if np.all((raw == 0) | (raw == 1)):
+            return raw.astype(np.bool_)
+    raise DatasetError(f"skipped: expected booleans (or 0/1), got dtype {raw.dtype}"
+                       + (f" with values {np.unique(raw)[:5].tolist()}" if raw.dtype.kind in "iuf" else ""))
+
+
+def _as_env_id(value: Any) -> str | None:
+    """The environment id as text: a str, UTF-8 bytes, or a string array with one element."""
+    if isinstance(value, np.ndarray):
+        if value.size != 1 or value.ndim > 1 or value.dtype.kind not in "US":
+            raise DatasetError(f"env_id: expected one string, got an array of dtype {value.dtype} and shape "
+                               f"{value.shape}")
+        value = value.reshape(-1)[0].item()
+    if isinstance(value, bytes):
+        try:
+            value = value.decode("utf-8")
+        except UnicodeDecodeError:
+            raise DatasetError("env_id: not UTF-8 text") from None
+    if not isinstance(value, str):
+        raise DatasetError(f"env_id: expected a string such as 'point_mass', got {type(value).__name__}")
+    text = value.strip()
+    if not text:
+        raise DatasetError("env_id: empty; leave the field out when the environment is unknown")
+    if len(text) > _MAX_ENV_ID:
+        raise DatasetError(f"env_id: {len(text)} characters; an environment id has at most {_MAX_ENV_ID}")
+    if not text.isprintable():
+        raise DatasetError(f"env_id: contains control characters: {text[:40]!r}")
+    return text
+
+
 # ---------------------------------------------------------------------------------------------- the dataset
 @dataclass(frozen=True, eq=False)
 class Dataset:
@@ -532,6 +610,7 @@ class Dataset:
     group : ndarray, shape (N,)
         Positive integer group labels; 1 is the most preferred group. Any labels
         ``K >= 2`` distinct values (at most :data:`MAX_GROUPS`); ranking follows their numeric order.
+        With ``allow_unlabelled`` also 0 (unlabelled), and fewer than two groups.
     states : ndarray, shape (S, k), optional
         Per-state states (e.g. positions), needed by parametric constraints.
     actions : ndarray, shape (S, a), optional
@@ -542,7 +621,22 @@ class Dataset:
         Known nominal weights :math:`w_n`.
     group_names : sequence of str, length K, optional
         Names of the groups in preference order (best first): ``group_names[k]`` names the ``k``-th
-        smallest label. Empty (the default) means unnamed.
+        smallest label. Empty (the default) means unnamed. With ``allow_unlabelled`` a labelling file may
+        also name groups that are still empty: when there are more names than non-empty groups, label ``k``
+        is named ``group_names[k-1]`` and every label must be at most ``len(group_names)``.
+    gap_relation : array-like, shape (K-1,), optional
+        Relative sizes of the gaps between consecutive groups, as ``pbicrl tune-margins --relation`` takes
+        them: ``[1, 4]`` says the gap between groups 2 and 3 is about four times the one between groups 1
+        and 2. ``K`` is the number of groups the dataset defines (:attr:`defined_groups`).
+    skipped : array-like of bool, shape (N,), optional
+        Trajectories the labeller chose not to rank; each has group 0. Default: none.
+    env_id : str, optional
+        Environment of the demonstrations (``"point_mass"``, ``"fetch_reach"``, ``"grid"``,
+        ``"halfcheetah"``, ``"ant"`` or one of your own), so that tools can draw them without extra flags.
+    allow_unlabelled : bool
+        Accept group 0 (unlabelled) and fewer than two groups: a pool of demonstrations to rank, or a
+        labelling session in progress. Inference refuses such a dataset; :meth:`labelled` keeps the
+        labelled trajectories.
 
     Raises
     ------
@@ -558,6 +652,10 @@ class Dataset:
     feature_names: tuple[str, ...] = field(default=())
     nominal_weights: NDArray[np.float64] | None = None
     group_names: tuple[str, ...] = field(default=())
+    gap_relation: NDArray[np.float64] | None = None
+    skipped: NDArray[np.bool_] | None = None
+    env_id: str | None = None
+    allow_unlabelled: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -597,10 +695,21 @@ class Dataset:
             else:
                 raise DatasetError(f"group: labels must be positive integers, got dtype {group.dtype}")
         group = group.astype(np.int64)
-        if np.any(group < 1):
-            raise DatasetError(f"group: labels must be positive integers (1 = most preferred), got {int(group.min())}")
-        labels = np.unique(group)
-        if labels.size < 2:
+        allow = bool(self.allow_unlabelled)
+        skipped = np.zeros(N, dtype=np.bool_) if self.skipped is None else _as_skipped(self.skipped, N)
+        if np.any(group < 0):
+            allowed = "0 (unlabelled) or positive integers" if allow else "positive integers (1 = most preferred)"
+            raise DatasetError(f"group: labels must be {allowed}, got {int(group.min())}")
+        n0 = int(np.sum(group == 0))
+        if n0 and not allow:
+            skip = f", {int(skipped.sum())} of them marked skipped" if skipped.any() else ""
+            raise DatasetError(
+                f"group: labels must be positive integers (1 = most preferred); {n0} of {N} trajectories have "
+                f"group 0 (unlabelled{skip}). Label them ('pbicrl label'), keep only the labelled ones "
+                "(load_dataset(path, allow_unlabelled=True).labelled()), or load the file as a pool with "
+                "allow_unlabelled=True")
+        labels = np.unique(group[group > 0])
+        if labels.size < 2 and not allow:
             raise DatasetError("group: need at least two non-empty groups to rank, found "
                                f"{labels.size} ({labels.tolist()})")
         if labels.size > MAX_GROUPS:
@@ -628,12 +737,28 @@ class Dataset:
         wn = None if self.nominal_weights is None else _as_vector("nominal_weights", self.nominal_weights, d)
 
         gnames = _as_names("group_names", self.group_names if self.group_names is not None else ())
+        defined = tuple(int(k) for k in labels)
         if gnames:
-            if len(gnames) != labels.size:
-                raise DatasetError(f"group_names: expected {labels.size} names (one per group, best first), "
-                                   f"got {len(gnames)}")
             if len(set(gnames)) != len(gnames):
                 raise DatasetError(f"group_names: names must be unique, got {list(gnames)}")
+            if len(gnames) != labels.size:
+                if not allow or len(gnames) < labels.size:
+                    raise DatasetError(f"group_names: expected {labels.size} names (one per group, best first), "
+                                       f"got {len(gnames)}")
+                if len(gnames) > MAX_GROUPS:
+                    raise DatasetError(f"group_names: {len(gnames):,} groups; at most {MAX_GROUPS:,} are supported")
+                if labels.size and int(labels.max()) > len(gnames):
+                    raise DatasetError(
+                        f"group_names: {len(gnames)} names, but a trajectory has group {int(labels.max())}; in a "
+                        "labelling file with empty groups, group k is named group_names[k-1]")
+                defined = tuple(range(1, len(gnames) + 1))  # names by rank: empty groups keep their place
+        bad = np.flatnonzero(skipped & (group != 0))
+        if bad.size:
+            i = int(bad[0])
+            raise DatasetError(f"skipped: trajectory {i} is marked skipped but has group {int(group[i])}; a "
+                               "skipped trajectory is unlabelled (group 0)")
+        rel = None if self.gap_relation is None else _as_gap_relation(self.gap_relation, len(defined))
+        env = None if self.env_id is None else _as_env_id(self.env_id)
 
         set_(self, "features", feats)
         set_(self, "offsets", offsets)
@@ -643,6 +768,11 @@ class Dataset:
         set_(self, "feature_names", names)
         set_(self, "nominal_weights", wn)
         set_(self, "group_names", gnames)
+        set_(self, "gap_relation", rel)
+        set_(self, "skipped", skipped)
+        set_(self, "env_id", env)
+        set_(self, "allow_unlabelled", allow)
+        set_(self, "_defined", defined)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -656,6 +786,10 @@ class Dataset:
         feature_names: Sequence[str] | None = None,
         nominal_weights: ArrayLike | None = None,
         group_names: Sequence[str] | None = None,
+        gap_relation: ArrayLike | None = None,
+        skipped: ArrayLike | None = None,
+        env_id: str | None = None,
+        allow_unlabelled: bool = False,
     ) -> "Dataset":
         """Build from a list of per-trajectory arrays.
 
@@ -668,6 +802,8 @@ class Dataset:
         nominal_weights : array-like, (d,), optional
         group_names : sequence of str, optional
             One per group, best first.
+        gap_relation, skipped, env_id, allow_unlabelled
+            As for :class:`Dataset`.
         """
         if len(features) == 0:
             raise DatasetError("features: no trajectories given")
@@ -713,6 +849,10 @@ class Dataset:
             feature_names=feature_names if feature_names is not None else (),
             nominal_weights=nominal_weights,
             group_names=group_names if group_names is not None else (),
+            gap_relation=gap_relation,
+            skipped=skipped,
+            env_id=env_id,
+            allow_unlabelled=allow_unlabelled,
         )
 
     # ------------------------------------------------------------------ properties
@@ -733,17 +873,31 @@ class Dataset:
 
     @property
     def group_labels(self) -> NDArray[np.int64]:
-        """Distinct group labels in preference order (best first), shape (K,)."""
-        return np.unique(self.group)
+        """Distinct labels of the non-empty groups in preference order (best first), shape (K,); never 0."""
+        return np.unique(self.group[self.group > 0])
 
     @property
     def n_groups(self) -> int:
         """Number of non-empty groups ``K``."""
         return int(self.group_labels.size)
 
+    @property
+    def defined_groups(self) -> tuple[int, ...]:
+        """Labels of the groups the dataset defines, best first: the non-empty ones, and in a labelling file
+        whose :attr:`group_names` name empty groups too, ``1 .. len(group_names)``. :attr:`gap_relation` has
+        one value per consecutive pair of them."""
+        return self._defined  # type: ignore[attr-defined]
+
+    @property
+    def n_unlabelled(self) -> int:
+        """Trajectories with group 0 (skipped ones included)."""
+        return int(np.sum(self.group == 0))
+
     def group_name(self, label: int) -> str:
-        """The name of group ``label`` (from :attr:`group_names`), else ``"G<label>"``."""
-        labels = self.group_labels.tolist()
+        """The name of group ``label`` (from :attr:`group_names`), else ``"G<label>"``; 0 is ``"unlabelled"``."""
+        if int(label) == 0 and self.allow_unlabelled:
+            return "unlabelled"
+        labels = list(self.defined_groups)
         if int(label) not in labels:
             raise DatasetError(f"group: no group with label {label}; labels are {labels}")
         return self.group_names[labels.index(int(label))] if self.group_names else f"G{int(label)}"
@@ -765,7 +919,7 @@ class Dataset:
         return self.states[self.offsets[i]:self.offsets[i + 1]]
 
     def group_counts(self) -> dict[int, int]:
-        """Number of trajectories per group label."""
+        """Number of trajectories per group label (0 = unlabelled, when there are any)."""
         labels, counts = np.unique(self.group, return_counts=True)
         return {int(k): int(c) for k, c in zip(labels, counts)}
 
@@ -777,21 +931,53 @@ class Dataset:
             raise DatasetError("subset: no trajectories selected")
         if idx.min() < 0 or idx.max() >= self.n_trajectories:
             raise DatasetError(f"subset: indices must lie in [0, {self.n_trajectories})")
+        return self._take(idx, strict=False)
+
+    def labelled(self) -> "Dataset":
+        """The labelled trajectories (group >= 1) as a dataset that inference accepts.
+
+        Skipped and unlabelled trajectories are dropped, so are empty groups: their names go, and
+        :attr:`gap_relation` is merged over them (gaps add up: the gap between groups 1 and 3 is the sum of
+        the two gaps between them).
+
+        Raises
+        ------
+        DatasetError
+            Fewer than two non-empty groups.
+        """
+        idx = np.flatnonzero(self.group > 0)
+        if self.n_groups < 2:
+            names = ", ".join(self.group_name(k) for k in self.group_labels.tolist()) or "none"
+            raise DatasetError(f"group: inference needs at least two non-empty groups; {idx.size} labelled "
+                               f"trajectories in {self.n_groups} group(s) ({names})")
+        return self._take(idx, strict=True)
+
+    def _take(self, idx: NDArray[np.int64], *, strict: bool) -> "Dataset":
+        """Trajectories ``idx``; ``strict`` drops the allowance for unlabelled ones (and empty groups)."""
         rows = np.concatenate([np.arange(self.offsets[i], self.offsets[i + 1]) for i in idx])
         lengths = self.lengths[idx]
-        names = ()
-        if self.group_names:  # keep the names of the groups that remain
-            by_label = dict(zip(self.group_labels.tolist(), self.group_names))
-            names = tuple(by_label[k] for k in np.unique(self.group[idx]).tolist())
+        group = self.group[idx]
+        defined = list(self.defined_groups)
+        keep_all = self.allow_unlabelled and not strict and len(defined) > self.n_groups
+        kept = defined if keep_all else [k for k in np.unique(group[group > 0]).tolist()]
+        names = tuple(self.group_name(k) for k in kept) if self.group_names else ()
+        rel = None
+        if self.gap_relation is not None and len(kept) >= 2:
+            cum = np.concatenate([[0.0], np.cumsum(self.gap_relation)])
+            rel = np.diff(cum[[defined.index(k) for k in kept]])
         return Dataset(
             features=self.features[rows],
             offsets=np.concatenate([[0], np.cumsum(lengths)]),
-            group=self.group[idx],
+            group=group,
             states=None if self.states is None else self.states[rows],
             actions=None if self.actions is None else self.actions[rows],
             feature_names=self.feature_names,
             nominal_weights=self.nominal_weights,
             group_names=names,
+            gap_relation=rel,
+            skipped=None if strict else self.skipped[idx],
+            env_id=self.env_id,
+            allow_unlabelled=self.allow_unlabelled and not strict,
         )
 
     def sample_per_group(self, n: int, seed: int | np.random.Generator | None = 0) -> "Dataset":
@@ -808,8 +994,7 @@ class Dataset:
 
     def with_nominal_weights(self, nominal_weights: ArrayLike) -> "Dataset":
         """Copy with other nominal weights :math:`w_n`."""
-        return Dataset(self.features, self.offsets, self.group, self.states, self.actions,
-                       self.feature_names, np.asarray(nominal_weights, dtype=np.float64), self.group_names)
+        return dataclasses.replace(self, nominal_weights=np.asarray(nominal_weights, dtype=np.float64))
 
     # ------------------------------------------------------------------ I/O
     def save(self, path: str | os.PathLike[str], *, compress: bool = True, overwrite: bool = True) -> Path:
@@ -850,6 +1035,12 @@ class Dataset:
             arrays["nominal_weights"] = self.nominal_weights
         if self.group_names:
             arrays["group_names"] = np.array(self.group_names, dtype=np.str_)
+        if self.gap_relation is not None:
+            arrays["gap_relation"] = self.gap_relation
+        if self.skipped is not None and self.skipped.any():
+            arrays["skipped"] = self.skipped
+        if self.env_id is not None:
+            arrays["env_id"] = np.array(self.env_id, dtype=np.str_)
         path.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_temporaries(path)
         fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), dir=path.parent)
@@ -866,10 +1057,11 @@ class Dataset:
         return path
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> "Dataset":
+    def load(cls, path: str | os.PathLike[str], *, allow_unlabelled: bool = False) -> "Dataset":
         """Read and validate a dataset file written by :meth:`save` (or by hand, see module docs).
 
-        Only a path: :func:`load_dataset` also takes the names of shipped datasets.
+        Only a path: :func:`load_dataset` also takes the names of shipped datasets. ``allow_unlabelled``
+        accepts group 0 (a pool, or a labelling session in progress; see :class:`Dataset`).
 
         Raises
         ------
@@ -899,15 +1091,26 @@ class Dataset:
                 feature_names=content.get("feature_names", ()),
                 nominal_weights=content.get("nominal_weights"),
                 group_names=content.get("group_names", ()),
+                gap_relation=content.get("gap_relation"),
+                skipped=content.get("skipped"),
+                env_id=content.get("env_id"),
+                allow_unlabelled=allow_unlabelled,
             )
         except DatasetError as exc:
             raise DatasetError(f"{path}: {exc}") from None
 
     def __repr__(self) -> str:
-        counts = ", ".join(f"G{k}{' ' + repr(self.group_name(k)) if self.group_names else ''}: {c}"
-                           for k, c in self.group_counts().items())
+        counts = ", ".join(("unlabelled" if k == 0 else f"G{k}{' ' + repr(self.group_name(k)) if self.group_names else ''}")
+                           + f": {c}" for k, c in self.group_counts().items())
+        more = ""
+        if self.skipped is not None and self.skipped.any():
+            more += f", skipped={int(self.skipped.sum())}"
+        if self.gap_relation is not None:
+            more += f", gap_relation={self.gap_relation.tolist()}"
+        if self.env_id is not None:
+            more += f", env_id={self.env_id!r}"
         return (f"Dataset(N={self.n_trajectories}, d={self.n_features}, states={self.lengths.sum()}, "
-                f"groups={{{counts}}}, features={list(self.feature_names)})")
+                f"groups={{{counts}}}, features={list(self.feature_names)}{more})")
 
 
 def _rename_no_clobber(src: str | os.PathLike[str], dst: Path) -> None:
@@ -928,7 +1131,7 @@ def _umask() -> int:
     return mask
 
 
-def load_dataset(name_or_path: str | os.PathLike[str]) -> Dataset:
+def load_dataset(name_or_path: str | os.PathLike[str], *, allow_unlabelled: bool = False) -> Dataset:
     """Read a dataset: a ``.npz`` file (see :class:`Dataset`) or the name of a shipped one.
 
     Parameters
@@ -936,5 +1139,9 @@ def load_dataset(name_or_path: str | os.PathLike[str]) -> Dataset:
     name_or_path : str or path
         ``"demos.npz"``, or a shipped dataset such as ``"point_mass"`` (:func:`list_shipped_datasets`);
         see :func:`resolve_dataset_path`.
+    allow_unlabelled : bool
+        Accept trajectories with group 0 (unlabelled) and fewer than two groups: a pool of demonstrations
+        to rank or a labelling file in progress (``pbicrl label``). Inference refuses them; keep the labelled
+        trajectories with :meth:`Dataset.labelled`.
     """
-    return Dataset.load(resolve_dataset_path(name_or_path))
+    return Dataset.load(resolve_dataset_path(name_or_path), allow_unlabelled=allow_unlabelled)

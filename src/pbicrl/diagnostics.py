@@ -8,7 +8,7 @@ use each chain's active draws, cut to a common length.
 
 The statistics come from ArviZ (``pip install "pbicrl[diag]"``; imported lazily, so the core does not need
 it): rank-normalised split :math:`\\hat R` and bulk / tail effective sample sizes (Vehtari et al. 2021).
-Without ArviZ the classic split :math:`\\hat R` (:func:`pbicrl.results.split_rhat`) is reported and ESS is
+Without ArviZ the classic split :math:`\\hat R` (:func:`split_rhat`) is reported and ESS is
 unavailable.
 
 A quantity that never changes in any chain (a feature that is not a candidate, or an indicator that is on
@@ -31,8 +31,8 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Diagnostics", "compute", "require_arviz", "arviz_available", "RHAT_MAX", "ESS_MIN",
-           "INSTALL_HINT"]
+__all__ = ["Diagnostics", "compute", "split_rhat", "require_arviz", "arviz_available", "arviz_major", "RHAT_MAX",
+           "ESS_MIN", "INSTALL_HINT"]
 
 RHAT_MAX = 1.01
 """Warn when :math:`\\hat R` exceeds this (Vehtari et al. 2021)."""
@@ -43,6 +43,28 @@ INSTALL_HINT = 'pip install "pbicrl[diag]"'
 _KINDS = ("penalty", "indicator", "parameter", "log_likelihood")
 _LABEL = {"penalty": "penalty c*w_p", "indicator": "indicator c", "parameter": "parameter",
           "log_likelihood": "log-likelihood"}
+
+
+def split_rhat(x: NDArray[np.float64]) -> float:
+    """Split-:math:`\\hat R` (Gelman et al., BDA3) of draws shaped (chains, draws).
+
+    NaN when undefined: fewer than 4 draws, one chain, or draws that never change (R-hat of a constant is
+    not 1, it is meaningless; :mod:`pbicrl.diagnostics` reports it as ``None``). Infinite when every chain is
+    constant but at different values.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] < 4 or x.shape[0] < 1:
+        return float("nan")
+    n = x.shape[1] // 2
+    halves = np.concatenate([x[:, :n], x[:, -n:]], axis=0)
+    m = halves.shape[0]
+    means = halves.mean(axis=1)
+    W = halves.var(axis=1, ddof=1).mean()
+    B = n * means.var(ddof=1)
+    if W == 0:
+        return float("nan") if B == 0 else float("inf")
+    var = (n - 1) / n * W + B / n
+    return float(np.sqrt(var / W)) if m > 1 else float("nan")
 
 
 def require_arviz() -> Any:
@@ -66,7 +88,8 @@ def arviz_available() -> bool:
     return True
 
 
-def _arviz_major(az: Any) -> int:
+def arviz_major(az: Any) -> int:
+    """Major version of an imported ArviZ module (0 when its version string is not a number)."""
     try:
         return int(str(az.__version__).split(".")[0])
     except ValueError:
@@ -216,8 +239,6 @@ def _clean(x: Any) -> float | None:
 
 
 def _stats_numpy(x: NDArray[np.float64]) -> dict[str, float | None]:
-    from pbicrl.results import split_rhat
-
     return {"rhat": _clean(split_rhat(x)) if x.shape[0] > 1 else None, "ess_bulk": None, "ess_tail": None}
 
 
@@ -229,9 +250,7 @@ def _stats_arviz(az: Any, x: NDArray[np.float64]) -> dict[str, float | None]:
         ess_tail = _clean(az.ess(x, method="tail", prob=(0.05, 0.95)))  # arviz 1.x needs prob
     if rhat is None and x.shape[0] > 1:
         # ArviZ gives NaN when every chain is constant; if the constants differ the chains disagree completely.
-        from pbicrl.results import split_rhat
-
-        rhat = _clean(split_rhat(x))
+            rhat = _clean(split_rhat(x))
     if rhat is not None and rhat > 1e6:  # zero within-chain variance, up to rounding (arviz 1.x)
         rhat = math.inf
     return {"rhat": rhat, "ess_bulk": ess_bulk, "ess_tail": ess_tail}

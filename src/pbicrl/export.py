@@ -32,10 +32,22 @@ constant_data    ``map_indicator``,             the MAP state and the nominal we
 
 **Pointwise log-likelihood.** ``az.loo`` needs one log-likelihood term per observation. The pairwise
 likelihood's terms are comparisons (one per pair: 270,000 for 3 groups of 300, and they are not
-exchangeable observations either), so the unit here is the trajectory: each pair's term
-:math:`\\log\\sigma(a_i - m - a_j)` is split in half between its two trajectories. The shares of one draw sum to
-its total log-likelihood (times the likelihood power), see :func:`pointwise_loglik`. A grouped likelihood
-(``kind="grouped"``) will give each trajectory its share of the group terms; it is not supported yet.
+exchangeable observations either), so the unit here is the trajectory, and each term is split between the
+trajectories it involves so that the shares of one draw sum to its total log-likelihood
+(:func:`pointwise_loglik`):
+
+* ``pairwise`` (paper Eq. 7): each pair's term :math:`\\log\\sigma(a_i - m - a_j)` is split in half between its
+  two trajectories (times the likelihood power).
+* ``grouped`` (Plackett-Luce): the term :math:`\\log P_k` of group :math:`\\mathcal{G}_k` against the lower groups
+  :math:`\\mathcal{R}_k` is split in half between the two sides, as a pair's is. The upper half goes to the
+  members :math:`i \\in \\mathcal{G}_k` in proportion to their own winner terms
+  :math:`\\ell_i = \\log\\sigma(a_i - \\log\\Lambda_k)` (the log-probability that :math:`i` alone beats every lower
+  trajectory, :func:`pbicrl._kernels.group_term` of one item): a member that barely beats the lower groups
+  carries more of the term. The lower half goes to the members :math:`j \\in \\mathcal{R}_k` in proportion to
+  their weight :math:`e^{a_j + m_{k\\ell(j)}} / \\Lambda_k` in :math:`\\Lambda_k`: a lower trajectory that
+  nearly reaches group :math:`k` carries more. Every share has the sign of its term, each term's shares add
+  up to it, so the shares sum to :math:`\\sum_k \\log P_k`; with one trajectory per group they are exactly the
+  pairwise split of :math:`\\log\\sigma(a_i - m - a_j)`.
 """
 
 from __future__ import annotations
@@ -43,15 +55,15 @@ from __future__ import annotations
 import json
 import os
 import re
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbicrl.data import _umask
-from pbicrl.diagnostics import INSTALL_HINT, _arviz_major, require_arviz
+from pbicrl._atomic import OutputExistsError, atomic_path
+from pbicrl.diagnostics import INSTALL_HINT, arviz_major, require_arviz
+from pbicrl.runs import constraint_set_of
 
 if TYPE_CHECKING:
     from pbicrl.constraints import ConstraintSet
@@ -99,11 +111,47 @@ def _pointwise_pairwise(lik: "PreferenceLikelihood", a: NDArray[np.float64]) -> 
     return out
 
 
+def _logsumexp(x: NDArray[np.float64]) -> float:
+    m = float(np.max(x)) if x.size else -np.inf
+    if not np.isfinite(m):
+        return m
+    return m + float(np.log(np.sum(np.exp(x - m))))
+
+
+def _split(total: float, weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``total`` shared in proportion to non-negative ``weights`` (equally if they sum to 0)."""
+    ws = float(weights.sum())
+    if not np.isfinite(total):
+        # an impossible ordering (-inf) or NaN: every member gets it, the sum stays -inf / NaN
+        return np.full(weights.size, total)
+    if ws > 0 and np.isfinite(ws):
+        return total * (weights / ws)
+    return np.full(weights.size, total / weights.size)
+
+
 def _pointwise_grouped(lik: "PreferenceLikelihood", a: NDArray[np.float64]) -> NDArray[np.float64]:
-    raise NotImplementedError(
-        "pointwise_loglik: the grouped likelihood (kind='grouped') has no per-trajectory split yet; it will "
-        "give each trajectory its share of the group terms. Export without the pointwise log-likelihood "
-        "(to_arviz(..., pointwise=False)) meanwhile.")
+    """Half of each :math:`\\log P_k` to the members of :math:`\\mathcal{G}_k` by their winner terms, half to the lower
+    trajectories by their weight in :math:`\\Lambda_k` (module docstring)."""
+    from pbicrl import _kernels
+
+    p = lik.preferences
+    items, off, M = p.group_items, p.group_offsets, p.group_margins
+    K = off.size - 1
+    out = np.zeros(a.size)
+    lse = np.array([_logsumexp(a[items[off[l]:off[l + 1]]]) for l in range(K)])
+    buf = np.empty((2, max(1, int(np.max(np.diff(off))))))
+    for k in range(K - 1):
+        lower = np.arange(k + 1, K)
+        log_lam = _logsumexp(lse[lower] + M[k, lower])
+        upper = items[off[k]:off[k + 1]]
+        x = np.ascontiguousarray(a[upper] - log_lam)
+        term = float(_kernels.group_term(x, buf))  # log P_k, as grouped_loglik computes it
+        own = -np.logaddexp(0.0, -x)  # log sigma(x_i): member i alone against every lower trajectory
+        out[upper] += _split(0.5 * term, -own)
+        low = items[off[k + 1]:off[K]]
+        group_of = np.repeat(lower, np.diff(off)[k + 1:])
+        out[low] += _split(0.5 * term, np.exp(a[low] + M[k, group_of] - log_lam))
+    return out
 
 
 # One entry per likelihood kind; a kind's function returns (N,) shares that sum to the unpowered total.
@@ -129,13 +177,12 @@ def pointwise_loglik(lik: "PreferenceLikelihood", a: ArrayLike) -> NDArray[np.fl
     -------
     ndarray, (N,)
         For the pairwise likelihood, trajectory :math:`i` gets half of the term
-        :math:`\\log\\sigma(a_i - m - a_j)` of every pair it takes part in, times the likelihood power. The shares
-        sum to ``lik.from_scaled_returns(a)`` (up to rounding); a trajectory in no pair gets 0.
+        :math:`\\log\\sigma(a_i - m - a_j)` of every pair it takes part in, times the likelihood power; for the
+        grouped likelihood, its shares of the group terms :math:`\\log P_k` (module docstring). The shares sum to
+        ``lik.from_scaled_returns(a)`` (up to rounding); a trajectory in no term gets 0.
 
     Raises
     ------
-    NotImplementedError
-        For ``kind="grouped"`` (not split per trajectory yet).
     ValueError
         For an unknown kind or an ``a`` of the wrong length.
     """
@@ -151,18 +198,6 @@ def pointwise_loglik(lik: "PreferenceLikelihood", a: ArrayLike) -> NDArray[np.fl
 
 
 # --------------------------------------------------------------------------------------- per-draw returns
-def _constraint_set(post: Any, dataset: "Dataset") -> "ConstraintSet | None":
-    settings = dict(getattr(post, "settings", {}) or {})
-    specs = settings.get("constraints")
-    if not specs:
-        return None
-    from pbicrl.constraints import ConstraintSet, constraint_from_dict
-
-    # resolved_bounds only record the prior; the features depend on the family, dims and direction
-    cons = [constraint_from_dict({k: v for k, v in spec.items() if k != "resolved_bounds"}) for spec in specs]
-    return ConstraintSet(tuple(cons), dataset)
-
-
 def _scaled_returns(lik: "PreferenceLikelihood", cset: "ConstraintSet | None", c: NDArray, wp: NDArray,
                     theta: NDArray | None) -> NDArray[np.float64]:
     """:math:`a` of one draw: known features at :math:`w_n + c\\circ w_p`, constraint features at their
@@ -248,10 +283,8 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
 
     Raises
     ------
-    NotImplementedError
-        If the run used a likelihood kind other than ``"pairwise"`` (``extra["likelihood"]``).
     ValueError
-        If the dataset does not match the run, the preferences cannot be rebuilt (explicit comparisons), or
+        If the run used an unknown likelihood kind, if the dataset does not match the run, the preferences cannot be rebuilt (explicit comparisons), or
         the rebuilt likelihood does not reproduce the recorded log-likelihood (e.g. a run sampled with a
         likelihood power or pair seed its ``summary.json`` does not record): the message says which.
     """
@@ -260,10 +293,9 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
     settings = dict(getattr(post, "settings", {}) or {})
     extra = dict(getattr(post, "extra", {}) or {})
     kind = str(extra.get("likelihood") or settings.get("likelihood") or "pairwise")
-    if kind != "pairwise":
-        # the same message as pointwise_loglik's, before building a likelihood whose shares do not exist yet
-        raise NotImplementedError(f"export: the run used the {kind!r} likelihood, which has no per-trajectory "
-                                  "split yet; export without the pointwise log-likelihood (pointwise=False)")
+    if kind not in _POINTWISE:
+        raise ValueError(f"export: the run used the {kind!r} likelihood, which this pbicrl does not know; "
+                         "export without the pointwise log-likelihood (pointwise=False)")
     names = [str(n) for n in post.feature_names]
     dk = dataset.n_features
     if list(dataset.feature_names) != names[:dk]:
@@ -283,8 +315,8 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
         dataset, margins=_margins_matrix(extra, dataset.n_groups),
         protocol="all" if hit is None else int(hit.group(1)), seed=int(recorded("pairs_seed", 0)),
         nominal_weights=None if wn is None else np.asarray(wn, dtype=np.float64),
-        beta=recorded("beta", 1.0), power=recorded("power", 1.0))
-    cset = _constraint_set(post, dataset)
+        beta=recorded("beta", 1.0), power=recorded("power", 1.0), likelihood=kind)  # type: ignore[arg-type]
+    cset = constraint_set_of(post, dataset)
     _check_likelihood(post, lik, cset)
     return lik, cset
 
@@ -433,7 +465,7 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
                                      "path is missing); pass dataset= (or --data), or likelihood=")
                 likelihood, constraints = run_likelihood(post, ds)
             elif constraints is None and ds is not None:
-                constraints = _constraint_set(post, ds)
+                constraints = constraint_set_of(post, ds)
             pw = pointwise_log_likelihood(post, likelihood, constraints=constraints, draws=idx)
         except (ValueError, NotImplementedError) as exc:
             if pointwise is True:
@@ -443,7 +475,9 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
             warn(f"{exc}; the export has no log_likelihood group (az.loo needs it)", stacklevel=4)
         else:
             N = pw.shape[2]
-            share = {"pairwise": "half of each pair's log sigma(a_i - m - a_j) to each of its two trajectories"}
+            share = {"pairwise": "half of each pair's log sigma(a_i - m - a_j) to each of its two trajectories",
+                     "grouped": "half of each group term log P_k to the group's members (by their own winner terms), "
+                                "half to the lower trajectories (by their weight in Lambda_k)"}
             kind = str(getattr(likelihood, "kind", "pairwise"))
             groups["log_likelihood"] = xr.Dataset(
                 {"preferences": (("chain", "draw", "trajectory"), pw,
@@ -461,7 +495,7 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
     attrs = {"inference_library": "pbicrl", "method": str(getattr(post, "method", "")),
              "seed": int(getattr(post, "seed", 0)), "settings_json": json.dumps(settings, default=_json_default)}
     try:
-        from pbicrl import __version__
+        from pbicrl._version import __version__
 
         attrs["inference_library_version"] = __version__
     except ImportError:  # pragma: no cover
@@ -509,7 +543,7 @@ def to_arviz(post: Any, *, dataset: "Dataset | str | os.PathLike[str] | None" = 
                               pointwise=pointwise, pointwise_draws=pointwise_draws)
     for g in groups.values():
         g.attrs.update(attrs)
-    if _arviz_major(az) >= 1:
+    if arviz_major(az) >= 1:
         import xarray as xr
 
         tree = xr.DataTree.from_dict(groups)
@@ -526,28 +560,20 @@ def to_netcdf(post: Any, path: str | os.PathLike[str], *, overwrite: bool = Fals
 
     Raises
     ------
-    FileExistsError
-        If ``path`` exists and ``overwrite`` is false.
+    pbicrl.results.OutputExistsError
+        If ``path`` exists and ``overwrite`` is false (a :class:`FileExistsError`).
     ImportError
         If ArviZ or a NetCDF engine (h5netcdf) is missing; the message names the pip command.
     """
     out = Path(path)
     if out.exists() and not overwrite:
-        raise FileExistsError(f"--netcdf: {out} already exists; choose another file or pass --overwrite")
+        raise OutputExistsError("path", out, kind="file")
     try:
         import h5netcdf  # noqa: F401
         import h5py  # noqa: F401  (h5netcdf's backend, not always pulled in by it)
     except ImportError as exc:
         raise ImportError(f"NetCDF export needs h5netcdf ({exc}): {INSTALL_HINT}") from exc
     data = to_arviz(post, **kwargs)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    os.close(fd)
-    try:
+    with atomic_path(out, overwrite=overwrite) as tmp:
         data.to_netcdf(tmp, engine="h5netcdf")
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return out

@@ -26,7 +26,9 @@ beat group :math:`\\ell` by about :math:`m_{k\\ell}` nats; with one trajectory p
 Eq. 7's :math:`\\log\\sigma(a_i - m_{k\\ell} - a_j)`. It is the probability of the observed ranking itself, so each
 trajectory's evidence counts once, where the pairwise sum counts it in each of its :math:`(K-1)n` pairs as if
 independent; no tempering is needed (``power`` does not apply). Cost: O(N) per evaluation (a one-dimensional
-integral per group, :func:`pbicrl._kernels.grouped_loglik`) instead of O(pairs).
+integral per group, :func:`pbicrl._kernels.grouped_loglik`) instead of O(pairs); groups of thousands of
+trajectories are binned (moments per bin, no transcendental function per trajectory and node), and many groups
+with additive margins cost O(K), not O(K^2).
 
 Returns are linear in the weights, so :class:`PreferenceLikelihood` precomputes :math:`\\beta\\bar\\Phi` once; the
 compiled kernels (:mod:`pbicrl._kernels`) evaluate either likelihood exactly and fast.
@@ -43,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from pbicrl import _kernels
 from pbicrl.data import Dataset
-from pbicrl.preferences import Margins, PreferenceError, Preferences
+from pbicrl.preferences import RANKED_MIN_GROUPS, Margins, PreferenceError, Preferences
 
 __all__ = ["PreferenceLikelihood", "log_likelihood", "log_likelihood_numpy", "scaled_returns", "pairwise_power",
            "LIKELIHOODS"]
@@ -176,30 +178,41 @@ class PreferenceLikelihood:
     @cached_property
     def _scratch_size(self) -> int:
         p = self.preferences
+        if p.ranked and self.kind == "pairwise":
+            return max(1, p.n_trajectories)  # ranked_loglik: the returns in group order and their exponentials
         return max(1, int(np.max(np.diff(p.block_col_offsets), initial=1)))
 
     @cached_property
-    def _group_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], int]:
-        """Group members (best group first), offsets, margin matrix and the scratch width of the grouped kernel."""
+    def _group_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], int,
+                                     NDArray[np.float64]]:
+        """Group members (best group first), offsets, margin matrix, the grouped kernel's scratch width, and the
+        offsets of additive margins. The grouped kernel uses the matrix below ``RANKED_MIN_GROUPS`` groups or when
+        the margins are not additive, else the offsets (O(K) instead of O(K^2) per evaluation)."""
         p = self.preferences
-        if self.kind != "grouped":  # placeholders with the same types: one compiled loop serves both kinds
-            return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros((0, 0)), 1
+        if self.kind == "pairwise" and p.ranked:
+            return p.group_items, p.group_offsets, np.zeros((0, 0)), 1, p.margin_offsets
+        if self.kind != "grouped":  # placeholders with the same types: one compiled loop serves every kind
+            return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros((0, 0)), 1, np.zeros(0)
         width = max(int(np.max(np.diff(p.group_offsets))), p.n_groups)
-        return p.group_items, p.group_offsets, p.group_margins, width
+        if p.n_groups >= RANKED_MIN_GROUPS and p.margin_offsets.size == p.n_groups:
+            return p.group_items, p.group_offsets, np.zeros((0, 0)), width, p.margin_offsets  # O(K), not O(K^2)
+        return p.group_items, p.group_offsets, p.group_margins, width, p.margin_offsets
 
     def kernel_args(self) -> tuple:
         """Everything :func:`pbicrl._kernels.loglik` takes after the returns: ``loglik(a, *lik.kernel_args())``.
 
         ``(kind code, the pairwise arrays, five pairwise scratch buffers, group members, group offsets, margin
-        matrix, grouped scratch)``; the compiled sampler splices the same tuple into its loop.
+        matrix, grouped scratch, margin offsets)``; the compiled sampler splices the same tuple into its loop. A
+        ranked layout (``Preferences.ranked``) gets the kind code of :func:`pbicrl._kernels.ranked_loglik`.
         """
         p = self.preferences
         n = self._scratch_size
         N = self.mean_features.shape[0]
-        gitems, goff, gmarg, width = self._group_arrays
-        return (_KIND_CODE[self.kind], p.block_rows, p.block_row_offsets, p.block_cols, p.block_col_offsets,
+        gitems, goff, gmarg, width, moff = self._group_arrays
+        code = _kernels.KIND_RANKED if (self.kind == "pairwise" and p.ranked) else _KIND_CODE[self.kind]
+        return (code, p.block_rows, p.block_row_offsets, p.block_cols, p.block_col_offsets,
                 p.block_margins, p.pair_i, p.pair_j, p.pair_margins, _aligned(n), _aligned(n), _aligned(n),
-                _aligned(N), _aligned(N), gitems, goff, gmarg, np.empty((4, width)))
+                _aligned(N), _aligned(N), gitems, goff, gmarg, np.empty((4, width)), moff)
 
     def weights(self, penalty_weights: ArrayLike, indicators: ArrayLike | None = None) -> NDArray[np.float64]:
         """Total weights :math:`w_n + c \\circ w_p`."""
@@ -243,7 +256,8 @@ def pairwise_power(preferences: Preferences) -> float:
     scaled as if each trajectory contributed one comparison's worth of evidence.
     """
     p = preferences
-    used = np.unique(np.concatenate([p.block_rows, p.block_cols, p.pair_i, p.pair_j]))
+    ranked = p.group_items if p.ranked else np.zeros(0, np.int64)
+    used = np.unique(np.concatenate([p.block_rows, p.block_cols, p.pair_i, p.pair_j, ranked]))
     return float(min(1.0, used.size / max(p.n_pairs, 1)))
 
 
@@ -265,6 +279,9 @@ def log_likelihood_numpy(a: NDArray[np.float64], preferences: Preferences) -> fl
         ai = a[p.block_rows[p.block_row_offsets[k]:p.block_row_offsets[k + 1]]] - p.block_margins[k]
         aj = a[p.block_cols[p.block_col_offsets[k]:p.block_col_offsets[k + 1]]]
         total -= np.logaddexp(0.0, aj[None, :] - ai[:, None]).sum()
+    if p.ranked:
+        for rows, cols, m in p.iter_blocks():
+            total -= np.logaddexp(0.0, (a[cols] + m)[None, :] - a[rows][:, None]).sum()
     if p.pair_i.size:
         total -= np.logaddexp(0.0, a[p.pair_j] + p.pair_margins - a[p.pair_i]).sum()
     return float(total)

@@ -25,8 +25,9 @@ from numpy.typing import ArrayLike, NDArray
 from pbicrl.data import Dataset
 from pbicrl.preferences import Margins
 from pbicrl.results import Posterior
+from pbicrl.runs import constraint_set_of
 
-__all__ = ["group_mean_returns", "relation_error", "tune_margins", "MarginTuning", "DEFAULT_GAP_GRID"]
+__all__ = ["group_mean_returns", "point_weights", "relation_error", "tune_margins", "MarginTuning", "DEFAULT_GAP_GRID"]
 
 DEFAULT_GAP_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
 
@@ -87,21 +88,39 @@ class MarginTuning:
                 "error": self.error, "group_means": self.group_means.tolist(), "candidates": self.table}
 
 
-def _weights_of(post: Posterior, dataset: Dataset, nominal: NDArray, estimator: str) -> tuple[NDArray, NDArray | None]:
-    """Total weights over known + parametric features, and the parametric mean-feature columns."""
+def point_weights(post: Any, dataset: Dataset, estimator: str = "selected",
+                  nominal: ArrayLike | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    r"""Total weights :math:`w_n + c \circ w_p` of a point estimate, over known and parametric features.
+
+    Parameters
+    ----------
+    post : Posterior or RunRecord
+    dataset : Dataset
+        The data the weights apply to (the parametric features are computed on its states).
+    estimator : {"selected", "map", "mean"}
+        See :meth:`~pbicrl.draws.DrawsView.point_estimate`.
+    nominal : array-like (d,), optional
+        :math:`w_n` of the known features (default: the dataset's, else zeros).
+
+    Returns
+    -------
+    weights : ndarray (d + M,)
+    columns : ndarray (N, M) or None
+        Mean features of the M parametric constraints at the estimate's locations (for
+        :func:`group_mean_returns`); None without parametric constraints.
+    """
     eff, theta = post.point_estimate(estimator)
     eff = np.nan_to_num(np.asarray(eff, dtype=np.float64))
     theta = np.asarray(theta, dtype=np.float64)
     d = dataset.n_features
-    w = np.concatenate([nominal, np.zeros(eff.size - d)]) + eff
+    if nominal is None:
+        nominal = dataset.nominal_weights if dataset.nominal_weights is not None else np.zeros(d)
+    w = np.concatenate([np.asarray(nominal, dtype=np.float64), np.zeros(eff.size - d)]) + eff
     cols = None
-    if post.parameter_names:
-        from pbicrl.constraints import ConstraintSet, constraint_from_dict
-
-        specs = post.settings["constraints"]
-        cs = ConstraintSet(tuple(constraint_from_dict({k: v for k, v in s.items() if k != "resolved_bounds"})
-                                 for s in specs), dataset)
-        cols = np.stack([cs.mean_feature(m, cs.theta_of(np.nan_to_num(theta), m)) for m in range(cs.n_constraints)], axis=1)
+    cs = constraint_set_of(post, dataset) if post.parameter_names else None
+    if cs is not None:
+        cols = np.stack([cs.mean_feature(m, cs.theta_of(np.nan_to_num(theta), m)) for m in range(cs.n_constraints)],
+                        axis=1)
     return w, cols
 
 
@@ -133,7 +152,7 @@ def tune_margins(
     run : callable, optional
         ``run(margins) -> Posterior``; default: :func:`pbicrl.infer` with ``infer_kwargs``.
     **infer_kwargs
-        Passed to :func:`pbicrl.infer` (e.g. ``n_iterations``, ``method``, ``seed``, ``constraints``).
+        Passed to :func:`pbicrl.infer` (e.g. ``iterations``, ``sampler``, ``seed``, ``constraints``).
     """
     from pbicrl.api import infer
 
@@ -163,7 +182,7 @@ def tune_margins(
     posts: dict[int, Posterior] = {}
     for idx, m in enumerate(cands):
         post = runner(m)
-        w, cols = _weights_of(post, dataset, nominal, estimator)
+        w, cols = point_weights(post, dataset, estimator, nominal)
         mu = group_mean_returns(dataset, w, cols)
         err, achieved = relation_error(mu, rel)
         table.append({"margins": m.as_dict(), "error": err if math.isfinite(err) else None,
@@ -181,7 +200,7 @@ def tune_margins(
     assert best is not None
     err, idx = best
     if not math.isfinite(err):
-        raise ValueError("tune-margins: no candidate ordered the group means as ranked (every candidate has a "
+        raise ValueError("relation: no candidate ordered the group means as ranked (every candidate has a "
                          "non-positive gap); widen the grid or check the group labels")
     row = table[idx]
     return MarginTuning(cands[idx], rel / rel[0], np.array(row["relation_achieved"], dtype=float), err,

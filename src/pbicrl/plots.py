@@ -24,17 +24,18 @@ error (:func:`check_truth`).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
+
+from pbicrl._atomic import atomic_path
 
 __all__ = ["plot_traces", "plot_posteriors", "plot_p_constraint", "plot_pairs", "plot_rewards", "plot_run",
            "map_returns", "true_returns", "parse_truth", "check_truth", "FORMATS", "DEFAULT_DPI",
@@ -674,15 +675,13 @@ def _returns(post: Any, dataset: Any, effective: NDArray[np.float64],
     d_known = dataset.n_features
     wn = _weights_known(post, dataset)
     feats = [dataset.mean_features]
-    specs = _settings(post).get("constraints")
     if len(names) > d_known:
-        if not specs:
+        from pbicrl.runs import constraint_set_of
+
+        cs = constraint_set_of(post, dataset)
+        if cs is None:
             raise ValueError(f"data: the run has {len(names) - d_known} features beyond the dataset's "
                              f"{d_known} but no constraint settings to recompute them")
-        from pbicrl.constraints import ConstraintSet, constraint_from_dict
-
-        cons = [constraint_from_dict({k: v for k, v in spec.items() if k != "resolved_bounds"}) for spec in specs]
-        cs = ConstraintSet(tuple(cons), dataset)
         th = np.asarray(theta if theta is not None else [], dtype=np.float64).reshape(-1)
         if th.size != cs.n_params:
             raise ValueError(f"run: parameters have {th.size} values, the constraints need {cs.n_params}")
@@ -850,23 +849,23 @@ def check_truth(truth: Mapping[str, float] | None, feature_names: Sequence[str],
     known = [str(n) for n in feature_names] + [str(n) for n in parameter_names]
     unknown = [str(k) for k in truth if str(k) not in known]
     if unknown:
-        raise ValueError(f"--truth: unknown name{'s' if len(unknown) > 1 else ''} "
+        raise ValueError(f"truth: unknown name{'s' if len(unknown) > 1 else ''} "
                          f"{', '.join(repr(u) for u in unknown)}; known names: {', '.join(known)}")
     out = {}
     for k, v in truth.items():
         try:
             x = float(v)
         except (TypeError, ValueError):
-            raise ValueError(f"--truth: value of {k!r} is not a number: {v!r}") from None
+            raise ValueError(f"truth: value of {k!r} is not a number: {v!r}") from None
         if not np.isfinite(x):
-            raise ValueError(f"--truth: value of {k!r} is not finite: {v!r}")
+            raise ValueError(f"truth: value of {k!r} is not finite: {v!r}")
         out[str(k)] = x
     return out
 
 
 def parse_truth(text: str | None, feature_names: Sequence[str],
                 parameter_names: Sequence[str] | None = None) -> dict[str, float] | None:
-    """``--truth``: a JSON file (``{"name": value}`` or ``{"true_penalty": [...]}``), ``name=value,...`` pairs,
+    """Parse a ``truth`` specification: a JSON file (``{"name": value}`` or ``{"true_penalty": [...]}``), ``name=value,...`` pairs,
     or one value per feature in order (``0,-10,-100,0``).
 
     Names are checked (:func:`check_truth`) when ``parameter_names`` is given (``()`` for a run without
@@ -885,33 +884,33 @@ def _parse_truth(text: str, names: list[str]) -> dict[str, float]:
     p = Path(text)
     if p.suffix == ".json" or p.is_file():
         if not p.is_file():
-            raise FileNotFoundError(f"--truth: {p}: no such file")
+            raise FileNotFoundError(f"truth: {p}: no such file")
         try:
             obj = json.loads(p.read_text())
         except json.JSONDecodeError as exc:
-            raise ValueError(f"--truth: {p} is not valid JSON ({exc})") from None
+            raise ValueError(f"truth: {p} is not valid JSON ({exc})") from None
         if isinstance(obj, dict) and "true_penalty" in obj:
             obj = obj["true_penalty"]
         if isinstance(obj, list):
             return _truth_list(obj, names)
         if not isinstance(obj, dict):
-            raise ValueError("--truth: the JSON file must hold an object {name: value} or a list of values")
+            raise ValueError("truth: the JSON file must hold an object {name: value} or a list of values")
         try:
             return {str(k): float(v) for k, v in obj.items()}
         except (TypeError, ValueError):
-            raise ValueError("--truth: values must be numbers") from None
+            raise ValueError("truth: values must be numbers") from None
     if "=" in text:
         out = {}
         for item in text.split(","):
             if not item.strip():
                 continue
             if "=" not in item:
-                raise ValueError(f"--truth: expected name=value pairs, got {item!r}")
+                raise ValueError(f"truth: expected name=value pairs, got {item!r}")
             k, v = item.split("=", 1)
             try:
                 out[k.strip()] = float(v)
             except ValueError:
-                raise ValueError(f"--truth: value of {k.strip()!r} is not a number: {v!r}") from None
+                raise ValueError(f"truth: value of {k.strip()!r} is not a number: {v!r}") from None
         return out
     return _truth_list(text.replace(",", " ").split(), names)
 
@@ -920,9 +919,9 @@ def _truth_list(values: Sequence[Any], names: Sequence[str]) -> dict[str, float]
     try:
         vals = [float(v) for v in values]
     except (TypeError, ValueError):
-        raise ValueError("--truth: values must be numbers") from None
+        raise ValueError("truth: values must be numbers") from None
     if len(vals) != len(names):
-        raise ValueError(f"--truth: expected {len(names)} values (one per feature: {', '.join(names)}), "
+        raise ValueError(f"truth: expected {len(names)} values (one per feature: {', '.join(names)}), "
                          f"got {len(vals)}")
     return dict(zip(names, vals))
 
@@ -969,10 +968,10 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
     from pbicrl.runs import load_run
 
     if fmt not in FORMATS:
-        raise ValueError(f"--format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
+        raise ValueError(f"fmt: expected one of {', '.join(FORMATS)}, got {fmt!r}")
     dpi = DEFAULT_DPI if dpi is None else int(dpi)
     if dpi < 1:
-        raise ValueError(f"--dpi: expected a positive number, got {dpi}")
+        raise ValueError(f"dpi: expected a positive number, got {dpi}")
     _mpl()
     if isinstance(run, (str, os.PathLike)):
         run = load_run(run)
@@ -1003,16 +1002,9 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
         figures["pairs"] = pairs
     if dataset is not None:
         figures["rewards"] = plot_rewards(run, dataset, **kw)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".plots.tmp-", dir=out))
-    written = []
-    try:
+    # every figure is rendered before any file is replaced: a failing figure leaves the old set untouched
+    with contextlib.ExitStack() as stack:
+        temps = {name: stack.enter_context(atomic_path(out / f"{name}.{fmt}")) for name in figures}
         for name, fig in figures.items():
-            _save(fig, tmp / f"{name}.{fmt}", dpi)
-        for name in figures:
-            dst = out / f"{name}.{fmt}"
-            os.replace(tmp / f"{name}.{fmt}", dst)
-            written.append(dst)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return written
+            _save(fig, temps[name], dpi)
+    return [out / f"{name}.{fmt}" for name in figures]

@@ -34,18 +34,24 @@ the mode of a common space and not a recommended point estimate.
     likelihood_evaluations, settings, warnings, extra
 
 Every number is finite or ``null``: the writer never emits ``NaN`` / ``Infinity`` (not JSON). Run directories
-(``summary.json`` and ``chains.npz``, all kept draws ``(chains, draws, d)``) are written atomically: a failed
-or interrupted write leaves no directory behind.
+(``summary.json`` and ``chains.npz``, all kept draws ``(chains, draws, d)``, per-chain ``counts`` and the per-draw
+``move``, ``accepted`` and ``acceptance_fraction``) are written atomically: a failed or interrupted write leaves
+no directory behind. Directories and files get the permissions the process's umask gives new files, and a run
+directory being written is claimed (an advisory lock ``.<name>.lock`` beside it, :func:`claim_out_dir`), so two
+processes writing the same directory cannot interleave: the second gets :class:`OutputBusyError`.
+
+:meth:`Posterior.load` (also ``pbicrl.load_run``) reads a run directory back into a :class:`Posterior` with the
+same draws, table and summary as the one that was saved.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import html
 import json
 import math
 import os
-import shutil
-import tempfile
+import socket
 import textwrap
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -57,223 +63,26 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl import errors
+from pbicrl._atomic import OutputBusyError, OutputExistsError, atomic_dir, clean_stale_temporaries
+from pbicrl.diagnostics import split_rhat
+from pbicrl.draws import ESTIMATORS, LEVEL, SELECTION_THRESHOLD, DrawsView
+from pbicrl.runs import SCHEMA_VERSION, load_run
 
 if TYPE_CHECKING:
     from pbicrl.diagnostics import Diagnostics
     from pbicrl.samplers.kernels import Kernel
 
-__all__ = ["Posterior", "DrawsView", "split_rhat", "write_run_dir", "check_out_dir", "is_run_dir", "json_safe", "SCHEMA_VERSION",
+__all__ = ["Posterior", "DrawsView", "split_rhat", "write_run_dir", "check_out_dir", "claim_out_dir",
+           "release_out_dir", "is_run_dir", "json_safe", "OutputExistsError", "OutputBusyError", "SCHEMA_VERSION",
            "SELECTION_THRESHOLD", "MAP_DEFINITION", "ESTIMATORS"]
 
-SCHEMA_VERSION = 2
-"""Version of the ``summary.json`` layout written by :meth:`Posterior.save` (files without one are 1)."""
-SELECTION_THRESHOLD = 0.5
-""":math:`P(c_j = 1) >` this selects feature :math:`j` (median-probability model, Barbieri & Berger 2004)."""
 MAP_DEFINITION = ("the highest-density visited draw (log prior + log likelihood) over all chains; in a "
                   "reversible-jump chain this compares densities of different dimensions, so it is not the mode "
                   "of a common space: prefer 'selected' with the conditional medians")
 """What ``summary.json``'s ``map`` block is, written into the block itself."""
-ESTIMATORS = ("selected", "map", "mean")
-"""Point estimates :meth:`DrawsView.point_estimate` offers (``selected`` is the default everywhere)."""
 
-_LEVEL = 0.9
 _NON_VARYING_REASON = "constant across trajectories: the likelihood does not depend on its penalty"
-
-
-def split_rhat(x: NDArray[np.float64]) -> float:
-    """Split-:math:`\\hat R` (Gelman et al., BDA3) of draws shaped (chains, draws).
-
-    NaN when undefined: fewer than 4 draws, one chain, or draws that never change (R-hat of a constant is
-    not 1, it is meaningless; :mod:`pbicrl.diagnostics` reports it as ``None``). Infinite when every chain is
-    constant but at different values.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] < 4 or x.shape[0] < 1:
-        return float("nan")
-    n = x.shape[1] // 2
-    halves = np.concatenate([x[:, :n], x[:, -n:]], axis=0)
-    m = halves.shape[0]
-    means = halves.mean(axis=1)
-    W = halves.var(axis=1, ddof=1).mean()
-    B = n * means.var(ddof=1)
-    if W == 0:
-        return float("nan") if B == 0 else float("inf")
-    var = (n - 1) / n * W + B / n
-    return float(np.sqrt(var / W)) if m > 1 else float("nan")
-
-
-class DrawsView:
-    r"""Views shared by every holder of draws (:class:`Posterior`, :class:`pbicrl.runs.RunRecord`).
-
-    Needs ``indicators`` and ``penalty_weights`` (chains, draws, d), ``feature_names`` and
-    ``map_indicators``, ``map_penalty_weights`` (d,); uses ``parameters`` (chains, draws, P),
-    ``parameter_names``, ``parameter_owner`` and ``map_parameters`` when present.
-    """
-
-    indicators: NDArray[np.int8]
-    penalty_weights: NDArray[np.float64]
-    feature_names: tuple[str, ...]
-    map_indicators: NDArray[np.int8]
-    map_penalty_weights: NDArray[np.float64]
-
-    @property
-    def n_chains(self) -> int:
-        return int(self.indicators.shape[0])
-
-    @property
-    def n_draws(self) -> int:
-        return int(self.indicators.shape[1])
-
-    @property
-    def n_features(self) -> int:
-        return int(self.indicators.shape[2])
-
-    @property
-    def effective_penalty(self) -> NDArray[np.float64]:
-        """Draws of :math:`c \\circ w_p`, (chains, draws, d)."""
-        return self.indicators * self.penalty_weights
-
-    @property
-    def map_effective_penalty(self) -> NDArray[np.float64]:
-        """:math:`c \\circ w_p` of the highest-density visited draw (see :data:`MAP_DEFINITION`)."""
-        return self.map_indicators * self.map_penalty_weights
-
-    @property
-    def p_constraint(self) -> NDArray[np.float64]:
-        """:math:`P(c_j = 1 \\mid \\mathcal{D})`, (d,)."""
-        return self.indicators.reshape(-1, self.n_features).mean(axis=0)
-
-    # ------------------------------------------------------------------ selection
-    def selected(self) -> list[str]:
-        """Names of the features with :math:`P(c_j = 1 \\mid \\mathcal{D}) > 0.5`, in feature order.
-
-        The median-probability set (Barbieri & Berger 2004). Unlike the highest-density draw it does not
-        compare densities of different dimensions.
-        """
-        on = self.p_constraint > SELECTION_THRESHOLD
-        return [n for n, s in zip(self.feature_names, on) if s]
-
-    def most_frequent_set(self) -> dict[str, Any]:
-        """The set of active features visited most often over all kept draws of all chains.
-
-        Returns
-        -------
-        dict
-            ``{"features": [names], "frequency": fraction of kept draws}``. Ties go to the smaller set, then
-            to the indicator vector that is smallest read in feature order (deterministic).
-        """
-        rows = np.asarray(self.indicators, dtype=np.int8).reshape(-1, self.n_features)
-        if rows.shape[0] == 0:
-            return {"features": [], "frequency": None}
-        sets, counts = np.unique(rows, axis=0, return_counts=True)
-        best = min(range(len(sets)), key=lambda k: (-int(counts[k]), int(sets[k].sum()), tuple(sets[k].tolist())))
-        return {"features": [n for n, on in zip(self.feature_names, sets[best]) if on],
-                "frequency": float(counts[best] / rows.shape[0])}
-
-    # ------------------------------------------------------------------ conditional on c_j = 1
-    def conditional_summary(self, level: float = _LEVEL) -> dict[str, NDArray[np.float64]]:
-        r"""Summaries of :math:`w_{p,j}` over the draws with :math:`c_j = 1`.
-
-        Parameters
-        ----------
-        level : float
-            Mass of the equal-tailed interval.
-
-        Returns
-        -------
-        dict
-            ``mean``, ``median``, ``low``, ``high`` (d,) float, NaN where :math:`c_j` is never 1;
-            ``active_draws`` (d,) int.
-        """
-        d = self.n_features
-        w = np.asarray(self.penalty_weights, dtype=np.float64).reshape(-1, d)
-        c = np.asarray(self.indicators).reshape(-1, d).astype(bool)
-        q = (1.0 - level) / 2.0
-        out = {k: np.full(d, np.nan) for k in ("mean", "median", "low", "high")}
-        n = np.zeros(d, dtype=np.int64)
-        for j in range(d):
-            x = w[c[:, j], j]
-            x = x[np.isfinite(x)]
-            n[j] = x.size
-            if x.size:
-                out["mean"][j] = x.mean()
-                out["median"][j] = np.median(x)
-                out["low"][j], out["high"][j] = np.quantile(x, [q, 1.0 - q])
-        out["active_draws"] = n
-        return out
-
-    def conditional_median(self) -> NDArray[np.float64]:
-        """Posterior median of :math:`w_{p,j}` given :math:`c_j = 1`, (d,); NaN where never active."""
-        return self.conditional_summary()["median"]
-
-    def parameter_conditional(self, level: float = _LEVEL) -> dict[str, NDArray[np.float64]]:
-        r"""Summaries of each parametric-constraint parameter :math:`\vartheta_k` while its constraint is on.
-
-        Returns
-        -------
-        dict
-            ``mean``, ``median``, ``low``, ``high`` (P,) float (NaN where never active) and ``active_draws``
-            (P,) int. Without ``parameter_owner`` every finite draw counts.
-        """
-        names = tuple(getattr(self, "parameter_names", ()) or ())
-        P = len(names)
-        out = {k: np.full(P, np.nan) for k in ("mean", "median", "low", "high")}
-        out["active_draws"] = np.zeros(P, dtype=np.int64)
-        params = getattr(self, "parameters", None)
-        if not P or params is None or np.size(params) == 0:
-            return out
-        th = np.asarray(params, dtype=np.float64).reshape(-1, P)
-        on = np.asarray(self.indicators).reshape(-1, self.n_features)
-        owner = tuple(getattr(self, "parameter_owner", ()) or ())
-        q = (1.0 - level) / 2.0
-        for p in range(P):
-            keep = np.isfinite(th[:, p])
-            if len(owner) == P:
-                keep &= on[:, owner[p]] == 1
-            x = th[keep, p]
-            out["active_draws"][p] = x.size
-            if x.size:
-                out["mean"][p] = x.mean()
-                out["median"][p] = np.median(x)
-                out["low"][p], out["high"][p] = np.quantile(x, [q, 1.0 - q])
-        return out
-
-    def point_estimate(self, estimator: str = "selected") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        r"""One reward to plot or score: effective penalties :math:`c \circ w_p` (d,) and locations
-        :math:`\vartheta` (P,), NaN for parameters of constraints that are off.
-
-        Parameters
-        ----------
-        estimator : {"selected", "map", "mean"}
-            ``selected`` (default): :math:`c_j = 1` for the selected set (:meth:`selected`), :math:`w_{p,j}`
-            and :math:`\vartheta` their posterior medians given :math:`c_j = 1`. ``map``: the highest-density
-            visited draw. ``mean``: posterior mean of :math:`c_j w_{p,j}`, parameters' means while active.
-        """
-        d = self.n_features
-        owner = tuple(getattr(self, "parameter_owner", ()) or ())
-        if estimator == "selected":
-            on = self.p_constraint > SELECTION_THRESHOLD
-            eff = np.where(on, np.nan_to_num(self.conditional_median()), 0.0)
-            theta = self.parameter_conditional()["median"]
-            keep = on
-        elif estimator == "map":
-            eff = np.asarray(self.map_effective_penalty, dtype=np.float64)
-            mp = getattr(self, "map_parameters", None)
-            P = len(tuple(getattr(self, "parameter_names", ()) or ()))
-            theta = np.full(P, np.nan) if mp is None or np.size(mp) != P else np.asarray(mp, dtype=np.float64).copy()
-            keep = np.asarray(self.map_indicators).astype(bool)
-        elif estimator == "mean":
-            eff = np.asarray(self.effective_penalty, dtype=np.float64).reshape(-1, d).mean(axis=0)
-            theta = self.parameter_conditional()["mean"]
-            keep = self.p_constraint > 0
-        else:
-            raise ValueError(f"estimator: expected one of {', '.join(ESTIMATORS)}, got {estimator!r}")
-        theta = np.asarray(theta, dtype=np.float64).copy()
-        if len(owner) == theta.size:
-            for p, j in enumerate(owner):
-                if not keep[j]:
-                    theta[p] = np.nan
-        return eff, theta
+_REPR_NAMES = 6  # names shown in a repr before "..."
 
 
 @dataclass(frozen=True, eq=False)
@@ -320,6 +129,16 @@ class Posterior(DrawsView):
     non_varying : tuple of str
         Candidate features whose per-trajectory mean never changes (found by :meth:`from_chains`): the
         rankings say nothing about their penalty.
+    move, accepted, acceptance_fraction : ndarray, (chains, draws), or None
+        Per kept draw: the move type of the iteration that produced it (int8, 0 none, 1 flip, 2 weight, 3
+        parameter; :data:`pbicrl.samplers.driver.MOVE_CODES`), whether it was accepted, and the fraction of
+        iterations accepted since the previous kept draw. ``None`` for runs saved before they were recorded.
+    path : Path or None
+        The run directory this posterior was loaded from (:meth:`load`), else ``None``.
+    recorded : dict
+        Numbers of ``summary.json`` the saved arrays cannot give back (``acceptance_rate``,
+        ``likelihood_evaluations`` of runs saved before ``chains.npz`` held the per-chain ``counts``); empty for
+        a sampled posterior.
     issue_warnings : bool
         Issue :meth:`warnings` as :class:`~pbicrl.errors.PbicrlWarning` when built (default).
     """
@@ -347,6 +166,11 @@ class Posterior(DrawsView):
     identified: dict | None = None
     prior: dict | None = None
     non_varying: tuple[str, ...] = ()
+    move: NDArray[np.int8] | None = None
+    accepted: NDArray[np.bool_] | None = None
+    acceptance_fraction: NDArray[np.float64] | None = None
+    path: Path | None = None
+    recorded: dict = field(default_factory=dict)
     issue_warnings: bool = field(default=True, repr=False)
 
     def __post_init__(self) -> None:
@@ -358,6 +182,13 @@ class Posterior(DrawsView):
         if self.issue_warnings:
             # stacklevel 5: errors.warn <- _issue <- __post_init__ <- __init__ <- whoever built the posterior
             self._issue(self.warnings(), stacklevel=5)
+
+    def emit_warnings(self, *, stacklevel: int = 2) -> None:
+        """Issue those of :meth:`warnings` this posterior has not issued yet (:class:`~pbicrl.errors.PbicrlWarning`).
+
+        ``stacklevel`` as for :func:`warnings.warn`: 2 (default) attributes them to the caller of this method.
+        """
+        self._issue(self.warnings(), stacklevel=stacklevel + 1)
 
     def _issue(self, messages: Sequence[str], *, stacklevel: int) -> None:
         issued = set(getattr(self, "_issued", frozenset()))
@@ -399,6 +230,12 @@ class Posterior(DrawsView):
             owner = tuple(dk + m for m in range(cs.n_constraints) for _ in range(cs.constraints[m].n_params))
         if prior is None and callable(getattr(kernel, "prior_summary", None)):
             prior = kernel.prior_summary()
+
+        def per_draw(key: str, dtype: Any) -> NDArray | None:  # chains run by older drivers lack them
+            if not all(key in r for r in results):
+                return None
+            return np.stack([np.asarray(r[key], dtype=dtype) for r in results])
+
         return cls(
             indicators=np.stack([r["indicators"] for r in results]),
             penalty_weights=np.stack([r["penalty_weights"] for r in results]),
@@ -428,8 +265,171 @@ class Posterior(DrawsView):
             identified=identified,
             prior=None if prior is None else dict(prior),
             non_varying=_non_varying(kernel, names),
+            move=per_draw("move", np.int8),
+            accepted=per_draw("accepted", bool),
+            acceptance_fraction=per_draw("acceptance_fraction", np.float64),
             issue_warnings=issue_warnings,
         )
+
+    @classmethod
+    def load(cls, run_dir: str | os.PathLike[str], *, issue_warnings: bool = True) -> "Posterior":
+        """Read a run directory (``pbicrl infer --out``, :meth:`save`) back into a posterior.
+
+        The draws, :meth:`table` and :meth:`summary` are those of the posterior that was saved (its
+        identification, prior summary, settings and extra information come from ``summary.json``). Every
+        ``summary.json`` schema version up to :data:`SCHEMA_VERSION` loads; what an older run did not record is
+        ``None`` (per-draw statistics) or taken from its summary (acceptance rates).
+
+        Parameters
+        ----------
+        run_dir : path
+        issue_warnings : bool
+            Issue the posterior's warnings (:class:`~pbicrl.errors.PbicrlWarning`), as sampling did.
+
+        Raises
+        ------
+        FileNotFoundError
+            No such directory, or ``summary.json`` / ``chains.npz`` missing.
+        pbicrl.runs.RunError
+            A malformed file, or a ``schema_version`` newer than this pbicrl reads (the message names the file).
+        """
+        rec = load_run(run_dir)
+        s = rec.summary
+        C, D, d = rec.indicators.shape
+        m = s.get("map") if isinstance(s.get("map"), dict) else {}
+        settings = dict(s.get("settings") or {})
+        for key in ("iterations", "burn_in", "thin"):  # the table and summary need them
+            if key not in settings:
+                settings[key] = s.get(key, D if key == "iterations" else 0 if key == "burn_in" else 1)
+        prior = s.get("prior")
+        if prior == {"weight_prior": settings.get("weight_prior"), "indicator_prior": settings.get("indicator_prior")}:
+            prior = None  # summary() wrote the settings' priors because none was attached
+        recorded: dict[str, Any] = {}
+        counts = rec.counts
+        if counts is None:
+            counts = np.zeros((C, 7), dtype=np.int64)
+            recorded = {k: s[k] for k in ("acceptance_rate", "likelihood_evaluations") if k in s}
+        P = len(rec.parameter_names)
+        params = rec.parameters if rec.parameters is not None else np.zeros((C, D, 0))
+        mp = rec.map_parameters
+        chain_rt = s.get("chain_runtime_s")
+
+        def number(x: Any) -> float:
+            return float(x) if _is_real(x) else float("nan")
+
+        post = cls(
+            indicators=rec.indicators, penalty_weights=rec.penalty_weights, log_likelihood=rec.log_likelihood,
+            log_prior=rec.log_prior, map_indicators=rec.map_indicators, map_penalty_weights=rec.map_penalty_weights,
+            map_log_posterior=number(m.get("log_posterior")), map_log_likelihood=number(m.get("log_likelihood")),
+            feature_names=tuple(rec.feature_names), method=rec.method, settings=settings, counts=counts,
+            seed=rec.seed, runtime_s=number(s.get("runtime_s")),
+            chain_runtime_s=(np.array([number(x) for x in chain_rt]) if isinstance(chain_rt, list)
+                             else np.full(C, np.nan)),
+            parameters=params,
+            map_parameters=(np.asarray(mp, dtype=np.float64) if mp is not None and np.size(mp) == P
+                            else np.full(P, np.nan)),
+            parameter_names=tuple(rec.parameter_names), parameter_owner=tuple(rec.parameter_owner),
+            extra=dict(s.get("extra") or {}), identified=rec.identified,
+            prior=dict(prior) if isinstance(prior, Mapping) else None,
+            non_varying=tuple(n for n, why in rec.not_identifiable().items() if why == _NON_VARYING_REASON),
+            move=rec.move, accepted=rec.accepted, acceptance_fraction=rec.acceptance_fraction,
+            path=Path(run_dir), recorded=recorded, issue_warnings=False)
+        if issue_warnings:
+            post._issue(post.warnings(), stacklevel=3)  # attributed to the caller of load
+        return post
+
+    # ------------------------------------------------------------------ display
+    def __repr__(self) -> str:
+        parts = [f"method={self.method!r}", f"chains={self.n_chains}", f"draws={self.n_draws}",
+                 f"features={self.n_features} {_short_names(self.feature_names)}",
+                 f"selected={_short_names(self.selected())}"]
+        if self.parameter_names:
+            parts.append(f"parameters={len(self.parameter_names)} {_short_names(self.parameter_names)}")
+        parts.append(f"seed={self.seed}")
+        if self.path is not None:
+            parts.append(f"path={str(self.path)!r}")
+        return f"Posterior({', '.join(parts)})"
+
+    def _records(self) -> list[dict[str, Any]]:
+        """The rows of :meth:`table` as records: one per feature, then one per constraint parameter."""
+        cs = self.conditional_summary()
+        pdriven = self.prior_driven()
+        mins = self.min_penalty()
+        skip = self.not_identifiable()
+        diag = self.diagnostics()
+        p = self.p_constraint
+
+        def f(x: Any) -> float:
+            return float(x) if _is_real(x) else float("nan")
+
+        rows: list[dict[str, Any]] = []
+        for j, n in enumerate(self.feature_names):
+            v = diag.worst_of(("penalty", "indicator"), n)
+            rows.append({"name": n, "kind": "feature", "p_constraint": float(p[j]),
+                         "selected": bool(p[j] > SELECTION_THRESHOLD),
+                         "min_penalty": float("nan") if n in skip else f(mins[j]),
+                         "median": f(cs["median"][j]), "mean": f(cs["mean"][j]),
+                         "ci90_low": f(cs["low"][j]), "ci90_high": f(cs["high"][j]),
+                         "prior_driven": pdriven[j], "active_draws": int(cs["active_draws"][j]),
+                         "rhat": f(v["rhat"]), "ess_bulk": f(v["ess_bulk"]), "ess_tail": f(v["ess_tail"]),
+                         "identifiable": n not in skip, "identified_range": None})
+        owner = tuple(self.parameter_owner)
+        for k, (n, v) in enumerate(self.parameter_summary().items()):
+            dv = diag.worst_of(("parameter",), n)
+            j = owner[k] if len(owner) == len(self.parameter_names) else None
+            lo, hi = v["ci90"]
+            rows.append({"name": n, "kind": "parameter", "p_constraint": float("nan") if j is None else float(p[j]),
+                         "selected": None if j is None else bool(p[j] > SELECTION_THRESHOLD),
+                         "min_penalty": float("nan"), "median": f(v["median"]), "mean": f(v["mean"]),
+                         "ci90_low": f(lo), "ci90_high": f(hi), "prior_driven": v["prior_driven"],
+                         "active_draws": int(v["active_draws"]), "rhat": f(dv["rhat"]),
+                         "ess_bulk": f(dv["ess_bulk"]), "ess_tail": f(dv["ess_tail"]), "identifiable": True,
+                         "identified_range": v["identified_range"]})
+        return rows
+
+    def to_dataframe(self) -> Any:
+        r"""The content of :meth:`table` as a :class:`pandas.DataFrame`, one row per feature and parameter.
+
+        Index ``name``; columns ``kind`` (``feature`` / ``parameter``), ``p_constraint``
+        (:math:`P(c_j = 1 \mid \mathcal{D})`, of the owning constraint for a parameter), ``selected``,
+        ``min_penalty`` (identification), ``median``, ``mean``, ``ci90_low``, ``ci90_high`` (of :math:`w_{p,j}`
+        given :math:`c_j = 1`; of :math:`\vartheta_k` while its constraint is on), ``prior_driven``,
+        ``active_draws``, ``rhat``, ``ess_bulk``, ``ess_tail`` (the worse of penalty and indicator), ``identifiable``
+        and ``identified_range``. Undefined numbers are NaN.
+
+        Raises
+        ------
+        ImportError
+            If pandas is not installed (``pip install pandas``).
+        """
+        try:
+            import pandas as pd
+        except ImportError as exc:
+            raise ImportError(f"Posterior.to_dataframe needs pandas ({exc}): pip install pandas "
+                              "(or pip install \"pbicrl[diag]\")") from exc
+        return pd.DataFrame.from_records(self._records()).set_index("name")
+
+    def _repr_html_(self) -> str:
+        """An HTML table of :meth:`table`'s content (for notebooks); every text is escaped."""
+        e = html.escape
+        head = ["feature", "P(c=1)", "sel", "min|w_p|", "med | c=1", "90% interval | c=1", "R-hat", "ESS bulk",
+                "ESS tail"]
+        out = [f"<div><p><b>{e(repr(self))}</b></p>", "<table>",
+               "<thead><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr></thead>", "<tbody>"]
+        for r in self._records():
+            star = "*" if r["prior_driven"] else ""
+            iv = ("-" if not (math.isfinite(r["ci90_low"]) and math.isfinite(r["ci90_high"]))
+                  else f"[{_num(r['ci90_low'], 9)}, {_num(r['ci90_high'], 9)}]{star}")
+            sel = "-" if r["selected"] is None else ("yes" if r["selected"] else "no")
+            cells = [r["name"] if r["kind"] == "feature" else f"parameter {r['name']}",
+                     _num(r["p_constraint"], 6) if r["kind"] == "feature" else "", sel,
+                     "n/a" if not r["identifiable"] else _num(r["min_penalty"], 8), _num(r["median"], 9), iv,
+                     _num(r["rhat"], 6), _num(r["ess_bulk"], 8), _num(r["ess_tail"], 8)]
+            out.append("<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in cells) + "</tr>")
+        out += ["</tbody></table>", "<ul>"]
+        out += [f"<li>{e(line)}</li>" for line in self._footer()]
+        out.append("</ul></div>")
+        return "\n".join(out)
 
     def attach(self, *, identified: Any = None, prior: Mapping[str, Any] | None = None) -> "Posterior":
         """A copy with an identification and/or prior summary attached (``None`` keeps the current one).
@@ -449,7 +449,7 @@ class Posterior(DrawsView):
         """Posterior mean of :math:`c_j w_{p,j}`, (d,)."""
         return self.effective_penalty.reshape(-1, self.n_features).mean(axis=0)
 
-    def ci(self, level: float = _LEVEL) -> NDArray[np.float64]:
+    def ci(self, level: float = LEVEL) -> NDArray[np.float64]:
         """Equal-tailed credible interval of :math:`c_j w_{p,j}`, (d, 2)."""
         q = (1 - level) / 2
         return np.quantile(self.effective_penalty.reshape(-1, self.n_features), [q, 1 - q], axis=0).T
@@ -491,7 +491,7 @@ class Posterior(DrawsView):
             out.append(v if _is_real(v) and math.isfinite(v) else None)
         return out
 
-    def prior_driven(self, level: float = _LEVEL) -> list[bool | None]:
+    def prior_driven(self, level: float = LEVEL) -> list[bool | None]:
         r"""Per feature: does the large-:math:`|w|` end of the interval of :math:`w_{p,j} \mid c_j = 1` come
         from the prior?
 
@@ -558,7 +558,9 @@ class Posterior(DrawsView):
         return out
 
     def acceptance_rate(self) -> dict[str, float]:
-        """Acceptance rate per move type over all chains."""
+        """Acceptance rate per move type over all chains (as recorded, for runs saved without counts)."""
+        if isinstance(self.recorded.get("acceptance_rate"), Mapping):
+            return {str(k): float(v) for k, v in self.recorded["acceptance_rate"].items() if _is_real(v)}
         tot = self.counts.sum(axis=0)
         out = {}
         if tot[0]:
@@ -672,7 +674,9 @@ class Posterior(DrawsView):
             "seed": self.seed,
             "runtime_s": self.runtime_s,
             "chain_runtime_s": self.chain_runtime_s.tolist(),
-            "likelihood_evaluations": int(self.counts[:, 4].sum()),
+            "likelihood_evaluations": (int(self.recorded["likelihood_evaluations"])
+                                       if _is_real(self.recorded.get("likelihood_evaluations"))
+                                       else int(self.counts[:, 4].sum())),
             "settings": settings,
             "warnings": self.warnings(),
         } | ({"extra": self.extra} if self.extra else {})
@@ -712,6 +716,18 @@ class Posterior(DrawsView):
                 rs = "-" if rng is None else f"[{_num(rng[0], 9)}, {_num(rng[1], 9)}]"
                 lines.append(f"{_cut(n, pw):<{pw}}  {_num(v['median'], 9):>9}  {iv}  {rs:^21}  "
                              f"{diag.cells('parameter', n, compact=True)}")
+        for line in self._footer(psum, pd, skip, diag):
+            lines.extend(textwrap.wrap(line, width=width, subsequent_indent="  ", break_on_hyphens=False) or [""])
+        return "\n".join(lines)
+
+    def _footer(self, psum: dict[str, dict[str, Any]] | None = None, pd: list[bool | None] | None = None,
+                skip: dict[str, str] | None = None, diag: "Diagnostics | None" = None) -> list[str]:
+        """The lines under :meth:`table`'s rows: selection, legend, prior-driven ends, run facts, warnings."""
+        names = list(self.feature_names)
+        psum = self.parameter_summary() if psum is None else psum
+        pd = self.prior_driven() if pd is None else pd
+        skip = self.not_identifiable() if skip is None else skip
+        diag = self.diagnostics() if diag is None else diag
         mfs = self.most_frequent_set()
         foot = [f"selected (P(c=1) > 0.5): {', '.join(self.selected()) or 'none'}; most frequent set: "
                 f"{{{', '.join(mfs['features'])}}} in {(mfs['frequency'] or 0.0):.1%} of kept draws"]
@@ -735,13 +751,23 @@ class Posterior(DrawsView):
                     f"({self.n_draws} kept each); acceptance {acc}; {self.runtime_s:.2f} s")
         foot.append(diag.footer(compact=True))
         foot += [f"warning: {m}" for m in self.warnings()]
-        for line in foot:
-            lines.extend(textwrap.wrap(line, width=width, subsequent_indent="  ", break_on_hyphens=False) or [""])
-        return "\n".join(lines)
+        return foot
 
     def save(self, out_dir: str | os.PathLike[str], *, overwrite: bool = False,
              extra_json: dict[str, Any] | None = None) -> Path:
-        """Write ``summary.json`` and ``chains.npz`` (and any ``extra_json`` files) to ``out_dir`` atomically."""
+        """Write ``summary.json`` and ``chains.npz`` (and any ``extra_json`` files) to ``out_dir`` atomically.
+
+        :meth:`load` reads it back. ``overwrite=True`` replaces a previous run directory, never anything else.
+
+        Raises
+        ------
+        OutputExistsError
+            ``out_dir`` exists (a :class:`FileExistsError`; pass ``overwrite=True`` to replace a previous run).
+        OutputBusyError
+            Another process is writing ``out_dir`` at the same time.
+        FileExistsError
+            ``out_dir`` is a file, a symbolic link or a directory that is not a run (even with ``overwrite``).
+        """
         arrays = {"indicators": self.indicators, "penalty_weights": self.penalty_weights,
                   "effective_penalty": self.effective_penalty, "log_likelihood": self.log_likelihood,
                   "log_prior": self.log_prior, "feature_names": np.array(self.feature_names, dtype=np.str_),
@@ -749,6 +775,12 @@ class Posterior(DrawsView):
                   "parameters": self.parameters, "map_parameters": self.map_parameters,
                   "parameter_names": np.array(self.parameter_names, dtype=np.str_),
                   "parameter_owner": np.array(self.parameter_owner, dtype=np.int64)}
+        if not self.recorded:  # a loaded run without counts keeps its recorded rates instead
+            arrays["counts"] = np.asarray(self.counts, dtype=np.int64)
+        for key in ("move", "accepted", "acceptance_fraction"):
+            v = getattr(self, key)
+            if v is not None:
+                arrays[key] = np.asarray(v)
         return write_run_dir(out_dir, {"summary.json": self.summary(), **(extra_json or {})}, {"chains.npz": arrays},
                              overwrite=overwrite)
 
@@ -1007,6 +1039,13 @@ def _interval(lo: float, hi: float, median_if_driven: float | None) -> str:
     return f"[{_num(lo, 9):>9}{mark_lo}, {_num(hi, 9):>9}{mark_hi}]"
 
 
+def _short_names(names: Sequence[str], limit: int = _REPR_NAMES) -> str:
+    """``['a', 'b', ...]`` with at most ``limit`` names (reprs never grow with the data)."""
+    names = [str(n) for n in names]
+    shown = ", ".join(repr(_cut(n, 24)) for n in names[:limit])
+    return f"[{shown}{', ...' if len(names) > limit else ''}]"
+
+
 def _cut(name: str, width: int) -> str:
     return name if len(name) <= width else name[: width - 1] + "~"
 
@@ -1064,13 +1103,101 @@ def _check_writable(parent: Path) -> None:
         raise PermissionError(f"out: cannot write into {parent} (permission denied)")
 
 
-def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False) -> Path:
-    """Fail early (before sampling) when ``out_dir`` could not be written by :func:`write_run_dir`.
+# Run directories claimed by this process: absolute path -> (descriptor of the locked file, its path).
+_CLAIMS: dict[str, tuple[int, str]] = {}
+
+
+def _lock_file(out: Path) -> Path:
+    return out.parent / f".{out.name}.lock"
+
+
+def claim_out_dir(out_dir: str | os.PathLike[str]) -> Path:
+    """Claim ``out_dir`` for this process until :func:`release_out_dir` or the end of the process.
+
+    The claim is an advisory lock (``flock``) on ``.<name>.lock`` beside ``out_dir`` (its parent directory is
+    created if missing); the operating system drops it when the process ends, however it ends, so a killed
+    writer never blocks later runs (the lock file it leaves is reused). :func:`write_run_dir` claims the
+    directory while it writes; a command claims it before sampling (:func:`check_out_dir` with ``claim=True``)
+    so that a second run writing to the same directory fails at once instead of after its sampling.
+    Claiming again from the same process is a no-op. Where the platform or file system has no ``flock`` the
+    claim is skipped (the writes stay atomic).
 
     Raises
     ------
+    OutputBusyError
+        Another process holds the claim; the message names it (host and process id).
+    """
+    out = Path(out_dir)
+    key = os.path.abspath(out)
+    if key in _CLAIMS:
+        return out
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not on POSIX
+        return out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    lock = _lock_file(out)
+    for _ in range(20):
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "unknown"
+            os.close(fd)
+            raise OutputBusyError(f"out: {out} is being written by another pbicrl process ({holder}); wait for it "
+                                  "to finish or choose another directory") from None
+        except OSError:  # no locks on this file system
+            os.close(fd)
+            return out
+        # the previous holder may have removed the file between our open and flock: then retry on the new one
+        try:
+            current = os.stat(lock)
+        except FileNotFoundError:
+            current = None
+        if current is not None and os.path.samestat(os.fstat(fd), current):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"host {socket.gethostname()}, pid {os.getpid()}\n".encode(), 0)
+            _CLAIMS[key] = (fd, str(lock))
+            return out
+        os.close(fd)
+    raise OutputBusyError(f"out: {out}: could not claim it (its lock file keeps changing); try again")
+
+
+def release_out_dir(out_dir: str | os.PathLike[str] | None = None) -> None:
+    """End this process's claim on ``out_dir`` (``None``: on every directory it claimed); removes the lock file."""
+    keys = list(_CLAIMS) if out_dir is None else [os.path.abspath(Path(out_dir))]
+    for key in keys:
+        held = _CLAIMS.pop(key, None)
+        if held is None:
+            continue
+        fd, lock = held
+        try:
+            os.unlink(lock)  # while still locked, so nobody locks the file we remove
+        except OSError:
+            pass
+        os.close(fd)
+
+
+def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, claim: bool = False) -> Path:
+    """Fail early (before sampling) when ``out_dir`` could not be written by :func:`write_run_dir`.
+
+    Parameters
+    ----------
+    out_dir : path
+    overwrite : bool
+        Whether a previous run directory there may be replaced.
+    claim : bool
+        Also claim the directory for this process (:func:`claim_out_dir`) until :func:`write_run_dir` has
+        written it (or :func:`release_out_dir`), so that a concurrent run to the same directory fails now.
+
+    Raises
+    ------
+    OutputExistsError
+        ``out_dir`` exists and ``overwrite`` is false.
     FileExistsError
-        ``out_dir`` exists and may not be replaced (see :func:`write_run_dir`).
+        ``out_dir`` is a file, a symbolic link or a directory that is not a run, or names no directory.
+    OutputBusyError
+        Another process claims ``out_dir`` (``claim=True``).
     PermissionError
         Its parent directory is not writable.
     """
@@ -1081,19 +1208,31 @@ def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False) -
         raise ValueError(f"out: the directory name is {len(os.fsencode(out.name))} bytes long; at most 200")
     if out.is_symlink():
         raise FileExistsError(f"out: {out} is a symbolic link; give a real directory path")
-    if out.exists() and not (out.is_dir() and not any(out.iterdir())):
-        if not overwrite:
-            raise FileExistsError(f"out: {out} already exists; choose another directory or pass --overwrite")
-        if not is_run_dir(out):
-            what = "a file" if not out.is_dir() else "a directory that is not a pbicrl run (no summary.json)"
-            raise FileExistsError(f"out: {out} is {what}; --overwrite only replaces a previous run directory")
     parent = out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if parent.exists() and not parent.is_dir():
         raise FileExistsError(f"out: {parent} is a file, not a directory")
     _check_writable(parent)
+    if claim:
+        claim_out_dir(out)
+    try:
+        _check_existing(out, overwrite)
+    except BaseException:
+        if claim:
+            release_out_dir(out)
+        raise
     return out
+
+
+def _check_existing(out: Path, overwrite: bool) -> None:
+    if out.exists() and not (out.is_dir() and not any(out.iterdir())):
+        if not overwrite:
+            raise OutputExistsError("out", out)
+        if not is_run_dir(out):
+            # overwrite replaces a previous run only: never a data file or an unrelated directory
+            what = "a file" if not out.is_dir() else "a directory that is not a pbicrl run (no summary.json)"
+            raise FileExistsError(f"out: {out} is {what}; overwrite only replaces a previous run directory")
 
 
 def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], npz_files: dict[str, dict[str, Any]],
@@ -1101,42 +1240,42 @@ def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], n
     """Create ``out_dir`` with the given files in one atomic rename (no half-written directory).
 
     JSON content goes through :func:`json_safe` (non-finite numbers become ``null``) and is written with
-    ``allow_nan=False``, so every file is valid JSON.
-    """
-    from pbicrl.data import clean_stale_temporaries, temporary_prefix
+    ``allow_nan=False``, so every file is valid JSON. The directory is claimed while it is written
+    (:func:`claim_out_dir`; a claim this process took before, e.g. by :func:`check_out_dir`, ends here) and
+    gets the permissions of the process's umask, as a plain ``mkdir`` would.
 
+    Raises
+    ------
+    OutputExistsError
+        ``out_dir`` exists and ``overwrite`` is false.
+    OutputBusyError
+        Another process is writing ``out_dir``.
+    FileExistsError
+        ``out_dir`` is a symbolic link, a file or a directory that is not a run (``overwrite`` or not).
+    """
     out = Path(out_dir)
-    clean_stale_temporaries(out)
     if out.is_symlink():
         raise FileExistsError(f"out: {out} is a symbolic link; give a real directory path")
-    if out.exists():
-        if out.is_dir() and not any(out.iterdir()):
-            out.rmdir()
-        elif not overwrite:
-            raise FileExistsError(f"out: {out} already exists; choose another directory or overwrite=True "
-                                  "(--overwrite)")
-        elif not is_run_dir(out):
-            # overwrite replaces a previous run only: never a data file or an unrelated directory
-            what = "a file" if not out.is_dir() else "a directory that is not a pbicrl run (no summary.json)"
-            raise FileExistsError(f"out: {out} is {what}; overwrite only replaces a previous run directory")
     texts = {name: json.dumps(json_safe(content), indent=2, allow_nan=False) + "\n"
              for name, content in json_files.items()}  # before creating anything: a TypeError leaves no trace
+    parent = out.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    _check_writable(parent)
     out.parent.mkdir(parents=True, exist_ok=True)
-    _check_writable(out.parent)
-    tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(out, "tmp"), dir=out.parent))
+    claim_out_dir(out)
     try:
-        for name, text in texts.items():
-            (tmp / name).write_text(text)
-        for name, arrays in npz_files.items():
-            np.savez_compressed(tmp / name, **arrays)
-        if out.exists():
-            backup = Path(tempfile.mkdtemp(prefix=temporary_prefix(out, "old"), dir=out.parent))
-            os.replace(out, backup / "old")
-            os.replace(tmp, out)
-            shutil.rmtree(backup, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        clean_stale_temporaries(out)
+        if out.is_symlink():
+            raise FileExistsError(f"out: {out} is a symbolic link; give a real directory path")
+        _check_existing(out, overwrite)
+        if out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        with atomic_dir(out, replace=True) as tmp:
+            for name, text in texts.items():
+                (tmp / name).write_text(text)
+            for name, arrays in npz_files.items():
+                np.savez_compressed(tmp / name, **arrays)
+    finally:
+        release_out_dir(out)
     return out

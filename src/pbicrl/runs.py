@@ -3,12 +3,14 @@
 :func:`load_run` returns a :class:`RunRecord`: the draws of ``chains.npz`` and the numbers of
 ``summary.json``, with the same attribute names as :class:`~pbicrl.results.Posterior` (``indicators``,
 ``penalty_weights``, ``log_likelihood``, ``feature_names``, ``map_indicators``, ...), so diagnostics, export
-and plots accept either.
+and plots accept either. It is the checked reader underneath; the public way to read a run back is
+``pbicrl.load_run`` / :meth:`pbicrl.results.Posterior.load`, which returns a full
+:class:`~pbicrl.results.Posterior`.
 
-``summary.json`` carries a ``schema_version`` (:data:`pbicrl.results.SCHEMA_VERSION`; files written before
+``summary.json`` carries a ``schema_version`` (:data:`SCHEMA_VERSION`; files written before
 it existed are version 1). Every version up to the current one loads: the fields added in version 2
 (``selected``, ``most_frequent_set``, conditional medians, ...) are computed from the draws by the
-:class:`~pbicrl.results.DrawsView` methods, so they exist for old runs too; :attr:`RunRecord.identified`
+:class:`~pbicrl.draws.DrawsView` methods, so they exist for old runs too; :attr:`RunRecord.identified`
 is ``None`` there. A newer version is refused with a message saying so.
 """
 
@@ -24,9 +26,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.results import SCHEMA_VERSION, DrawsView
+from pbicrl.draws import DrawsView
 
-__all__ = ["RunRecord", "RunError", "check_run_dir", "load_run"]
+__all__ = ["RunRecord", "RunError", "SCHEMA_VERSION", "check_run_dir", "load_run", "constraint_set_of"]
+
+SCHEMA_VERSION = 2
+"""Version of the ``summary.json`` layout :meth:`pbicrl.results.Posterior.save` writes (files without one are 1)."""
 
 _MAX_SUMMARY_BYTES = 64 << 20  # a summary.json is a few hundred KiB at most; more is not a summary
 
@@ -65,6 +70,10 @@ class RunRecord(DrawsView):
     parameter_owner : tuple of int
         Feature index of the constraint each parameter belongs to (from ``chains.npz``, else from the
         ``"<constraint>.<parameter>"`` names).
+    counts : ndarray (chains, 7) or None
+        Per-chain move counters (:attr:`pbicrl.results.Posterior.counts`), when the run recorded them.
+    move, accepted, acceptance_fraction : ndarray (chains, draws) or None
+        Per-draw move type, acceptance and acceptance fraction, when the run recorded them.
     """
 
     path: Path
@@ -80,6 +89,16 @@ class RunRecord(DrawsView):
     parameter_names: tuple[str, ...] = field(default=())
     map_parameters: NDArray[np.float64] | None = None
     parameter_owner: tuple[int, ...] = field(default=())
+    counts: NDArray[np.int64] | None = None
+    move: NDArray[np.int8] | None = None
+    accepted: NDArray[np.bool_] | None = None
+    acceptance_fraction: NDArray[np.float64] | None = None
+
+    def __repr__(self) -> str:
+        C, D, d = self.indicators.shape
+        names = ", ".join(repr(n) for n in self.feature_names[:6]) + (", ..." if d > 6 else "")
+        return (f"RunRecord(path={str(self.path)!r}, method={self.method!r}, chains={C}, draws={D}, "
+                f"features={d} [{names}], parameters={len(self.parameter_names)})")
 
     # Posterior-compatible views --------------------------------------------------------------
     @property
@@ -261,6 +280,8 @@ def _read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
             pnames = tuple(str(n) for n in z["parameter_names"].tolist()) if "parameter_names" in z else ()
             map_params = z["map_parameters"].astype(np.float64) if "map_parameters" in z else None
             owner = tuple(int(j) for j in z["parameter_owner"].tolist()) if "parameter_owner" in z else ()
+            counts = z["counts"].astype(np.int64) if "counts" in z else None
+            per_draw = {k: z[k] for k in ("move", "accepted", "acceptance_fraction") if k in z}
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         if isinstance(exc, RunError):
             raise
@@ -286,4 +307,29 @@ def _read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
         if len(owner) != len(pnames):
             heads = [n.rsplit(".", 1)[0] for n in pnames]
             owner = tuple(names.index(h) for h in heads) if all(h in names for h in heads) else ()
-    return RunRecord(run, summary, ind, wp, ll, lp, names, map_c, map_w, params, pnames, map_params, owner)
+    if counts is not None and (counts.ndim != 2 or counts.shape[0] != ind.shape[0] or counts.shape[1] < 5):
+        raise RunError(f"{cz}: 'counts' has shape {counts.shape}, expected ({ind.shape[0]}, 7)")
+    for k, v in per_draw.items():
+        if v.shape != ind.shape[:2]:
+            raise RunError(f"{cz}: '{k}' has shape {v.shape}, the draws are {ind.shape[:2]}")
+    return RunRecord(run, summary, ind, wp, ll, lp, names, map_c, map_w, params, pnames, map_params, owner,
+                     counts=counts, move=per_draw["move"].astype(np.int8) if "move" in per_draw else None,
+                     accepted=per_draw["accepted"].astype(bool) if "accepted" in per_draw else None,
+                     acceptance_fraction=(per_draw["acceptance_fraction"].astype(np.float64)
+                                          if "acceptance_fraction" in per_draw else None))
+
+
+def constraint_set_of(run: Any, dataset: Any) -> Any:
+    """The :class:`~pbicrl.constraints.ConstraintSet` a run sampled with, rebuilt over ``dataset``, or None.
+
+    ``run`` is a :class:`~pbicrl.results.Posterior` or :class:`RunRecord`; its ``settings["constraints"]`` hold
+    each constraint's ``to_dict()`` plus ``resolved_bounds``, which record the prior only (the features depend
+    on the family, dimensions and direction), so they are left out.
+    """
+    specs = (dict(getattr(run, "settings", {}) or {})).get("constraints")
+    if not specs:
+        return None
+    from pbicrl.constraints import ConstraintSet, constraint_from_dict
+
+    return ConstraintSet(tuple(constraint_from_dict({k: v for k, v in spec.items() if k != "resolved_bounds"})
+                               for spec in specs), dataset)

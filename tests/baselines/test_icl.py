@@ -6,6 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from pbicrl.errors import PbicrlWarning
+
 torch = pytest.importorskip("torch")
 pytest.importorskip("gymnasium")
 
@@ -215,11 +217,13 @@ def test_run_icl_task_on_a_dataset(tmp_path):
                                    group=[1] * len(expert) + [2] * len(bad), states=expert + bad)
     path = tmp_path / "pm.npz"
     ds.save(path)
-    res = run_icl_task({"env": "point_mass", "dataset": str(path), "budget": "smoke", "seed": 0,
+    res = run_icl_task({"env": "point_mass", "data": str(path), "budget": "smoke", "seed": 0,
                         "icl": {"rounds": 1, "ppo": {"n_steps": 128}}}, tmp_path / "out")
     assert res["n_expert"] == 12 and res["rounds"] == 1 and res["budget"] == "smoke"
     assert (tmp_path / "out" / "icl" / "summary.json").exists()
     with pytest.raises(ValueError, match="env"):
+        run_icl_task({"env": "cartpole", "data": str(path)}, tmp_path / "x")
+    with pytest.warns(PbicrlWarning, match="'dataset' is deprecated"), pytest.raises(ValueError, match="env"):
         run_icl_task({"env": "cartpole", "dataset": str(path)}, tmp_path / "x")
 
 
@@ -234,7 +238,7 @@ def test_reproduce_icl_smoke(tmp_path, monkeypatch):
     make_wall_problem(100, length=60, seed=0).dataset.save(data)
     monkeypatch.setenv("PBICRL_ICL_BUDGET", "smoke")
     (report,) = reproduce("icl", out=tmp_path, iterations=2000, seeds=1, executor="serial", progress=False,
-                          datasets={"halfcheetah": str(data), "ant": str(data)})
+                          data={"halfcheetah": str(data), "ant": str(data)})
     text = report.read_text()
     assert "paper ICL" in text and "CMSE (grid)" in text and "budget `smoke`" in text
     res = json.loads((tmp_path / "icl" / "results.json").read_text())
@@ -245,7 +249,7 @@ def test_reproduce_icl_smoke(tmp_path, monkeypatch):
         assert row["pbicrl"]["runtime_s"][0] > 0 and row["icl"]["runtime_s"][0] > 0
     monkeypatch.setenv("PBICRL_ICL_BUDGET", "enormous")
     with pytest.raises(ValueError, match="PBICRL_ICL_BUDGET"):
-        reproduce("icl", out=tmp_path, seeds=1, executor="serial", progress=False, datasets={"halfcheetah": str(data)})
+        reproduce("icl", out=tmp_path, seeds=1, executor="serial", progress=False, data={"halfcheetah": str(data)})
 
 
 def test_reproduce_all_excludes_icl(monkeypatch, tmp_path):

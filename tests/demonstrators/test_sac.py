@@ -46,6 +46,10 @@ def test_smoke_run_writes_policy_budget_and_log(tmp_path):
     obs, _ = env.reset(seed=0)
     a, _ = policy.predict(obs, deterministic=True)
     assert a.shape == (1,) and env.action_space.contains(a.astype(np.float32))
+    # a whole-model zip (a checkpoint) loads to a policy acting exactly as the shipped one
+    full = load_policy(out / "final_model.zip")
+    b, _ = full.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(a, b)
     env.close()
 
 

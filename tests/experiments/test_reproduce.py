@@ -28,34 +28,88 @@ def test_grid_smoke(tmp_path):
 
 def test_navigation_and_wall_smoke(tmp_path, stand_ins):
     reports = reproduce("point-mass", out=tmp_path, iterations=3000, seeds=2, executor="serial", progress=False,
-                        datasets=stand_ins)
+                        data=stand_ins)
     res = json.loads((tmp_path / "point-mass" / "results.json").read_text())
     assert set(res["methods"]) >= {"BPL", "PBICRL, m = 0", "PBICRL, tuned margins"}
     assert res["tuning"]["relation_target"] == [1.0, 4.0]
     assert (tmp_path / "point-mass" / "weights.png").exists()
-    reproduce("halfcheetah", out=tmp_path, iterations=3000, seeds=2, executor="serial", progress=False, datasets=stand_ins)
+    reproduce("halfcheetah", out=tmp_path, iterations=3000, seeds=2, executor="serial", progress=False, data=stand_ins)
     wall = json.loads((tmp_path / "halfcheetah" / "results.json").read_text())
     assert set(wall["sizes"]) == {"20", "50", "100", "200"}
     assert "CMSE" in (tmp_path / "halfcheetah" / "report.md").read_text()
     # resumable: a second call finds every run done and reruns nothing
     before = sorted(p.name for p in (tmp_path / "runs").iterdir())
-    reproduce("halfcheetah", out=tmp_path, iterations=3000, seeds=2, executor="serial", progress=False, datasets=stand_ins)
+    reproduce("halfcheetah", out=tmp_path, iterations=3000, seeds=2, executor="serial", progress=False, data=stand_ins)
     assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == before
     assert reports[0].exists()
 
 
-def test_unknown_experiment():
-    with pytest.raises(ValueError, match="unknown"):
+def test_unknown_experiment_lists_the_registry():
+    with pytest.raises(ValueError, match="unknown 'moon'; choose one of grid, point-mass, fetch-reach, halfcheetah, "
+                                         "ant, sensitivity, icl or all"):
         reproduce("moon", progress=False)
-    assert "sensitivity" in EXPERIMENTS
+
+
+def test_the_registry_is_what_the_command_line_offers_and_all_runs_all_but_icl(tmp_path, monkeypatch):
+    from pbicrl.cli import build_parser
+
+    sub = next(a for a in build_parser()._subparsers._group_actions if a.dest == "command")
+    choices = next(a.choices for a in sub.choices["reproduce"]._actions if a.dest == "experiment")
+    assert list(choices) == [*EXPERIMENTS, "all"]
+    called = []
+    for name in EXPERIMENTS:  # stand-ins that record the order and the context they get
+        def fake(ctx, name=name):
+            called.append((name, ctx.pairs, ctx.iterations, ctx.seeds))
+            return ctx.out / name / "report.md"
+        monkeypatch.setitem(EXPERIMENTS, name, fake)
+    reports = reproduce("all", out=tmp_path, pairs="sampled", iterations=123, seeds=2, progress=False)
+    expected = [n for n in EXPERIMENTS if n != "icl"]
+    assert [c[0] for c in called] == expected and all(c[1:] == ("sampled", 123, 2) for c in called)
+    assert reports == [tmp_path / n / "report.md" for n in expected]
+
+
+def test_old_argument_names_still_work_with_a_warning(tmp_path, monkeypatch):
+    from pbicrl.errors import PbicrlWarning
+
+    seen = []
+    monkeypatch.setitem(EXPERIMENTS, "grid", lambda ctx: seen.append((ctx.pairs, ctx.data)) or tmp_path / "r.md")
+    with pytest.warns(PbicrlWarning, match="'protocol' is deprecated.*use 'pairs'"):
+        reproduce("grid", out=tmp_path, protocol="sampled", datasets={"grid": "x.npz"}, progress=False)
+    assert seen == [("sampled", {"grid": "x.npz"})]
+    with pytest.raises(TypeError, match="unexpected keyword argument 'sedes'"):
+        reproduce("grid", out=tmp_path, sedes=3)
+    with pytest.raises(ValueError, match="pairs: expected 'all' or 'sampled'"):
+        reproduce("grid", out=tmp_path, pairs="some")
+
+
+def test_protocol_flag_is_a_deprecated_spelling_of_pairs(tmp_path, monkeypatch, capsys):
+    from pbicrl.cli import main
+
+    seen = []
+    monkeypatch.setitem(EXPERIMENTS, "grid", lambda ctx: seen.append(ctx.pairs) or tmp_path / "r.md")
+    assert main(["reproduce", "grid", "--out", str(tmp_path), "--protocol", "sampled", "--no-progress"]) == 0
+    assert main(["reproduce", "grid", "--out", str(tmp_path), "--pairs", "sampled", "--no-progress"]) == 0
+    assert main(["reproduce", "grid", "--out", str(tmp_path), "--no-progress"]) == 0
+    assert seen == ["sampled", "sampled", "all"]
+    err = capsys.readouterr().err
+    assert err.count("--protocol is deprecated") == 1 and "use --pairs" in err
 
 
 def test_sensitivity_fetch_ant_smoke(tmp_path, stand_ins):
     for name in ("fetch-reach", "ant", "sensitivity"):
-        reproduce(name, out=tmp_path, iterations=2000, seeds=1, executor="serial", progress=False, datasets=stand_ins)
+        reproduce(name, out=tmp_path, iterations=2000, seeds=1, executor="serial", progress=False, data=stand_ins)
         assert (tmp_path / name / "report.md").exists()
     sens = json.loads((tmp_path / "sensitivity" / "results.json").read_text())
-    assert set(sens["point-mass"]) == {"20", "60", "100"}
+    assert set(sens["point-mass"]) == {"20", "60", "100", "paper", "default"}
+    assert set(sens["point-mass"]["default"]) == {"20", "60", "100"}
+    assert 0 <= sens["point-mass"]["default"]["20"]["exact_set"] <= 1
+    assert (tmp_path / "sensitivity" / "sensitivity.png").stat().st_size > 0
+    wall = json.loads((tmp_path / "ant" / "results.json").read_text())
+    assert set(wall["default"]) == {"20", "50", "100", "200"}
+    row = wall["default"]["100"]
+    lo, hi = row["identified"][0]
+    assert lo < hi  # the identified wall interval of seed 0's subsample
+    assert (tmp_path / "ant" / "ant_cmse.png").stat().st_size > 0
 
 
 @pytest.mark.slow

@@ -114,9 +114,9 @@ def test_expand_grid():
 def test_make_executor(monkeypatch):
     assert isinstance(make_executor(), LocalExecutor) and make_executor("local", 3).workers == 3
     assert make_executor("serial").workers == 1
-    with pytest.raises(ValueError, match="--workers: the serial executor"):
+    with pytest.raises(ValueError, match="workers: the serial executor"):
         make_executor("serial", 2)
-    with pytest.raises(ValueError, match="--executor: expected one of"):
+    with pytest.raises(ValueError, match="executor: expected one of"):
         make_executor("dask")
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
     with monkeypatch.context() as m:

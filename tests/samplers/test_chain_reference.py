@@ -21,6 +21,11 @@ Everything a chain depends on is stored or pinned, so that work elsewhere does n
   must match in any case; for ``pbicrl`` and ``bpl`` the chain is compared only while ``Kernel.init`` still
   gives the recorded initial state (it belongs to ``samplers/kernels.py``, which evolves separately).
 
+What is compared is the chain: every state, draw, log-density, MAP and proposal/acceptance counter. Two things
+measure work rather than the chain and may only go down: the number of exact likelihood evaluations
+(``counts[C_EVALS]``; the sampler skips evaluations whose outcome is already decided, e.g. by a bound) and the
+per-call memo scratch (``memo_valid``, ``memo_ll``: the last two arguments of ``run_chunk``), which is not compared.
+
 The states visited stay within the kernel's one-centre range (returns spread < ``_kernels._SPREAD``), whose
 arithmetic must not change by a single bit; the wide-spread path is checked against its oracle elsewhere.
 """
@@ -124,15 +129,24 @@ def _capture_loop_args(kernel: Kernel) -> list[Any]:
     finally:
         _mcmc.run_chunk = real
     assert len(seen) == 1
-    return seen[0]
+    return seen[0][:len(seen[0]) - len(_later_args(1))]  # _run_loop appends those itself
 
 
 def _run_loop(args: list[Any], lik: PreferenceLikelihood) -> list[Any]:
-    """``run_chunk`` on recorded prefix/suffix arguments around fresh ``kernel_args()``; returns the mutated arrays."""
+    """``run_chunk`` on recorded prefix/suffix arguments around fresh ``kernel_args()``; returns the mutated arrays.
+
+    Arguments added to ``run_chunk`` after the reference was recorded go last, at the values that switch their
+    feature off (``_later_args``); they are not returned.
+    """
     prefix = [a.copy() if isinstance(a, np.ndarray) else a for a in args[:_N_PREFIX]]
     suffix = [a.copy() if isinstance(a, np.ndarray) else a for a in args[_N_PREFIX + _N_KARGS_RECORDED:]]
-    _mcmc.run_chunk(*prefix, *lik.kernel_args(), *suffix)
+    _mcmc.run_chunk(*prefix, *lik.kernel_args(), *suffix, *_later_args(int(np.size(prefix[9]))))
     return prefix + suffix
+
+
+def _later_args(d: int) -> tuple[Any, ...]:
+    """``p_joint, zj, jcov, jst, jsc``: no joint weight moves (``SamplerSettings.p_joint = 0``)."""
+    return 0.0, np.zeros((1, 1)), np.zeros((d, d)), np.zeros((3, d, d)), np.array([1.0, 0.0, 0.0])
 
 
 def _loop_case(case: str, method: str, data: dict[str, np.ndarray], args: list[Any] | None) -> dict[str, np.ndarray]:
@@ -228,8 +242,16 @@ def _check_loop(case: str, method: str) -> str:
     after = _run_loop(args, _likelihood(case, data))
     if len(after) != len(before):
         return "fail: run_chunk takes a different number of arguments around kernel_args()"
+    i_counts = len(after) - 6  # ... map_scal, counts, a_new, col_new, theta_new, memo_valid, memo_ll
     for k, (v, b) in enumerate(zip(after, before)):
+        if k >= len(after) - 2:
+            continue  # memo scratch (module docstring)
         expect = ref[f"out{k}"] if f"out{k}" in ref else np.asarray(b)
+        if k == i_counts:
+            problem = _counts_problem(np.asarray(v), expect)
+            if problem:
+                return f"fail: {problem}"
+            continue
         if not np.array_equal(np.asarray(v), expect, equal_nan=True):
             return f"fail: run_chunk argument {k} differs after the call"
     if not np.ptp(after[11]) < _kernels._SPREAD:  # the final returns: the reference exercises the one-centre kernel
@@ -237,6 +259,16 @@ def _check_loop(case: str, method: str) -> str:
     if float(after[12][0]) == float(ref["arg12"][0]):
         return "fail: the log-likelihood never moved"
     return "ok"
+
+
+def _counts_problem(got: np.ndarray, expect: np.ndarray) -> str:
+    """'' when the counters agree (likelihood evaluations may only have gone down), else what differs."""
+    keep = np.arange(expect.size) != _mcmc.C_EVALS
+    if got.shape != expect.shape or not np.array_equal(got[keep], expect[keep]):
+        return "proposal/acceptance counters differ"
+    if got[_mcmc.C_EVALS] > expect[_mcmc.C_EVALS]:
+        return f"more likelihood evaluations than recorded ({got[_mcmc.C_EVALS]} > {expect[_mcmc.C_EVALS]})"
+    return ""
 
 
 def _check_driver(case: str, method: str) -> str:
@@ -253,7 +285,11 @@ def _check_driver(case: str, method: str) -> str:
     if changed:
         return f"fail: Algorithm 1's initial state changed ({', '.join(changed)})"
     for key in _DRIVER_FIELDS:
-        if not np.array_equal(got[key], ref[key], equal_nan=True):
+        if key == "counts":
+            problem = _counts_problem(got[key], ref[key])
+            if problem:
+                return f"fail: {problem}"
+        elif not np.array_equal(got[key], ref[key], equal_nan=True):
             return f"fail: {key} differs"
     return "ok"
 

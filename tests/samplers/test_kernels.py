@@ -11,13 +11,22 @@ from pbicrl.samplers import SamplerSettings, build_kernel, sample
 from pbicrl.samplers.reference import reference_chain
 
 
-def _lik(problem, margins=(0.5, 1.0)):
+def _lik(problem, margins=(0.5, 1.0), layout="blocks"):
+    if layout == "sampled":  # explicit pairs: proposals are screened with a bound (same chain, fewer evaluations)
+        return PreferenceLikelihood.from_dataset(problem.dataset, margins=list(margins), protocol=30, seed=1)
+    if layout == "ranked":  # 15 groups of 5: every cross-group pair as the ranking itself (no blocks)
+        ds = problem.dataset
+        order = np.argsort(np.argsort(ds.group, kind="stable"), kind="stable")
+        prefs = Preferences.from_groups(order // 5, np.linspace(0.1, 0.5, 14))
+        assert prefs.ranked
+        return PreferenceLikelihood(ds.mean_features, prefs, ds.nominal_weights)
     return PreferenceLikelihood.from_dataset(problem.dataset, margins=list(margins))
 
 
+@pytest.mark.parametrize("layout", ["blocks", "sampled", "ranked"])
 @pytest.mark.parametrize("method", ["paper", "bpl", "pbicrl"])
-def test_compiled_chain_equals_reference(ranked_problem, method):
-    lik = _lik(ranked_problem)
+def test_compiled_chain_equals_reference(ranked_problem, method, layout):
+    lik = _lik(ranked_problem, layout=layout)
     n = 1500
     prior = WeightPrior("flat", -50, 50)
     kernel = build_kernel(lik, method=method, n_iterations=n, burn_in=0, thin=1, adapt=False, sigma=0.3,
@@ -35,6 +44,9 @@ def test_compiled_chain_equals_reference(ranked_problem, method):
     np.testing.assert_allclose(out[1], rw, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(out[3], rll, rtol=1e-9)
     assert len(np.unique(out[3])) > 10  # the chain moved
+    end = kernel.run(np.random.default_rng(7), state, n)
+    if layout == "sampled" and method != "bpl":
+        assert end.counts[4] < 0.8 * (end.counts[0] + end.counts[2])  # many proposals rejected from the bound
 
 
 def test_step_is_pure_and_chunking_does_not_matter(ranked_problem):
@@ -78,8 +90,10 @@ def _tiny_problem():
     return ds
 
 
-def test_pbicrl_posterior_matches_quadrature():
-    """P(c) and E[w | c=1] from the reversible-jump sampler equal numerical integration of the model."""
+@pytest.mark.parametrize("p_joint", [0.0, pytest.param(0.3, marks=pytest.mark.slow)])
+def test_pbicrl_posterior_matches_quadrature(p_joint):
+    """P(c) and E[w | c=1] from the reversible-jump sampler equal numerical integration of the model (also with
+    the adaptive joint weight move mixed in)."""
     ds = _tiny_problem()
     B, pi = 4.0, 0.3
     lik = PreferenceLikelihood.from_dataset(ds)
@@ -110,7 +124,8 @@ def test_pbicrl_posterior_matches_quadrature():
     assert 0.05 < p2 < 0.95, "the test problem should leave feature 2 uncertain"
 
     res = sample(lik, method="pbicrl", n_iterations=120_000, n_chains=4, seed=1, progress=False,
-                 weight_prior=WeightPrior("flat", -B, B, sign="any"), indicator_prior=IndicatorPrior(pi), sigma=0.5)
+                 weight_prior=WeightPrior("flat", -B, B, sign="any"), indicator_prior=IndicatorPrior(pi), sigma=0.5,
+                 p_joint=p_joint)
     pc = res.p_constraint
     cm, _ = res.conditional_penalty()
     assert pc[0] == pytest.approx(p1, abs=0.03)
@@ -353,3 +368,43 @@ def test_authors_sampler_resets_switched_off_weights():
     p = runs["paper"]
     assert np.all(p.penalty_weights[0] == p.penalty_weights[0][:1])  # paper keeps every latent weight
     assert a.settings["init_range"] == [-30.0, -1.0]
+
+
+def test_joint_weight_move_matches_the_posterior_of_correlated_weights():
+    """bpl with only joint moves after warm-up: mean and covariance of two strongly correlated weights against
+    quadrature on a grid; the adapted covariance follows the posterior's."""
+    rng = np.random.default_rng(2)
+    F = rng.normal(size=(40, 2))
+    F[:, 1] = F[:, 0] + 0.3 * F[:, 1]  # nearly collinear features: correlated weights
+    pairs = rng.integers(0, 40, (150, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    wt = np.array([1.0, -1.5])
+    r = F @ wt
+    keep = rng.random(pairs.shape[0]) < 1.0 / (1.0 + np.exp(-(r[pairs[:, 0]] - r[pairs[:, 1]])))
+    pairs = np.where(keep[:, None], pairs, pairs[:, ::-1])
+    lik = PreferenceLikelihood(F, Preferences.from_pairs(pairs, 40), np.zeros(2))
+    B = 8.0
+    g = np.linspace(-B, B, 401)
+    W0, W1 = np.meshgrid(g, g, indexing="ij")
+    W = np.c_[W0.ravel(), W1.ravel()]
+    a = W @ F.T
+    ll = -np.logaddexp(0.0, a[:, pairs[:, 1]] - a[:, pairs[:, 0]]).sum(axis=1)
+    p = np.exp(ll - ll.max())
+    p /= p.sum()
+    mean = p @ W
+    cov = (W - mean).T @ ((W - mean) * p[:, None])
+    assert abs(cov[0, 1]) / np.sqrt(cov[0, 0] * cov[1, 1]) > 0.8
+    res = sample(lik, method="bpl", n_iterations=60_000, n_chains=4, seed=3, progress=False, p_joint=0.6,
+                 weight_prior=WeightPrior("flat", -B, B, sign="any"), sigma=0.5)
+    draws = res.penalty_weights.reshape(-1, 2)
+    np.testing.assert_allclose(draws.mean(axis=0), mean, atol=0.06 * np.sqrt(np.diag(cov)).max() + 0.02)
+    np.testing.assert_allclose(np.cov(draws.T), cov, rtol=0.15)
+
+
+def test_joint_move_settings_are_checked():
+    with pytest.raises(ValueError, match="p_joint"):
+        SamplerSettings(method="paper", p_joint=0.2)
+    with pytest.raises(ValueError, match="p_joint"):
+        SamplerSettings(method="pbicrl", p_flip=0.6, p_joint=0.5)
+    with pytest.raises(ValueError, match="p_joint"):
+        SamplerSettings(p_joint=1.0)

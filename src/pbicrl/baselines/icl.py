@@ -44,7 +44,6 @@ import os
 import platform
 import signal
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -60,6 +59,7 @@ try:
 except ImportError as exc:  # pragma: no cover - exercised only without the extra
     raise ImportError('pbicrl.baselines.icl needs PyTorch: pip install "pbicrl[rl]"') from exc
 
+from pbicrl._atomic import atomic_path, write_json
 from pbicrl.baselines.ppo_lagrangian import PPOLagConfig, PPOLagrangian
 
 __all__ = [
@@ -79,6 +79,8 @@ __all__ = [
     "point_mass_expert_demos",
     "run_icl",
     "run_icl_task",
+    "save_checkpoint",
+    "write_json_file",
 ]
 
 PRESETS = ("smoke", "default", "paper")
@@ -558,17 +560,12 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _write_json(path: Path, obj: Any) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+def write_json_file(path: Path, obj: Any) -> None:
+    """Write ``obj`` as JSON atomically (NumPy values as lists, anything else JSON lacks as text)."""
+    write_json(path, obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+
+
+_write_json = write_json_file  # the old name, still imported by pbicrl.safe_rl
 
 
 def _plain_state(obj: Any) -> Any:
@@ -626,16 +623,13 @@ def _load_checkpoint(path: Path) -> dict[str, Any]:
     return obj
 
 
-def _torch_save(obj: Any, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+def save_checkpoint(obj: Any, path: Path) -> None:
+    """``torch.save`` of ``obj`` (NumPy values made plain, see :func:`_plain_state`) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
         torch.save(_plain_state(obj), tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+
+_torch_save = save_checkpoint  # the old name, still imported by pbicrl.safe_rl
 
 
 def _rollout_coords(ppo: PPOLagrangian, env: Any, coord: Callable, n: int, seed: int,
@@ -780,9 +774,9 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
         st["wall_time_s"] = wall_before + (now - t_session)
         st["sessions"] = state["sessions"] + [{"started_utc": time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime(t_session)),
                                                "wall_time_s": now - t_session, "end_steps": ppo.num_steps}]
-        _torch_save({"config": cfg.to_dict(), "seed": seed, "expert_sha256": fingerprint, "ppo": ppo.state_dict(), "constraint": net.state_dict(),
+        save_checkpoint({"config": cfg.to_dict(), "seed": seed, "expert_sha256": fingerprint, "ppo": ppo.state_dict(), "constraint": net.state_dict(),
                      "constraint_opt": copt.state_dict(), "state": st}, ckpt)
-        _write_json(out / "budget.json", {
+        write_json_file(out / "budget.json", {
             "status": status, "env": spec.name, "seed": seed, "n_expert": len(expert),
             "requested_ppo_steps": cfg.total_steps, "done_ppo_steps": ppo.num_steps, "rounds": cfg.rounds,
             "rounds_done": state["round"], "wall_time_s": round(st["wall_time_s"], 1), "sessions": st["sessions"],
@@ -889,11 +883,10 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
     st = _load_checkpoint(ckpt)["state"]
     summary["runtime_s"] = float(st["wall_time_s"])
     summary["sessions"] = len(st["sessions"])
-    _torch_save({"state_dict": net.state_dict(), "dim": k, "hidden": list(cfg.constraint_hidden)}, out / "constraint.pt")
-    tmp = out / ".constraint_grid.tmp.npz"
-    np.savez_compressed(tmp, grid=spec.grid, c=vals, truth=spec.true_indicator(spec.grid))
-    os.replace(tmp, out / "constraint_grid.npz")
-    _write_json(out / "summary.json", summary)
+    save_checkpoint({"state_dict": net.state_dict(), "dim": k, "hidden": list(cfg.constraint_hidden)}, out / "constraint.pt")
+    with atomic_path(out / "constraint_grid.npz") as tmp:
+        np.savez_compressed(tmp, grid=spec.grid, c=vals, truth=spec.true_indicator(spec.grid))
+    write_json_file(out / "summary.json", summary)
     log(f"done: location {loc}, cmse_location {summary['cmse_location']}, cmse_grid {summary['cmse_grid']:.4f}, "
         f"runtime {summary['runtime_s']:.0f} s over {summary['sessions']} session(s)")
     ppo.close()
@@ -904,14 +897,26 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
 def run_icl_task(config: dict, out_dir: Path) -> dict[str, Any]:
     """Task entry point (``"pbicrl.baselines.icl:run_icl_task"``): one ICL seed on a dataset's good demos.
 
-    Config keys: ``env`` (``halfcheetah``/``ant``/``point_mass``), ``dataset`` (path to a
+    Config keys: ``env`` (``halfcheetah``/``ant``/``point_mass``), ``data`` (path to a
     :class:`pbicrl.data.Dataset` with states; or ``"scripted"`` for the point mass's scripted expert),
     ``budget`` (preset name) and/or ``icl`` (dict of :class:`ICLConfig` overrides), ``budget_sha256`` (ignored
     here: lets a caller hash the preset's values into the task), ``seed``, ``n_expert``
-    (default 200), ``expert_group`` (default 1), ``sample_seed``, ``checkpoint_dir`` (a directory that
-    outlives the task's temporary output directory so an interrupted task resumes; default: inside
-    ``out_dir``, i.e. no resume).
+    (default 200), ``expert_group`` (default 1), ``demos_seed`` (the draw of the expert demonstrations),
+    ``checkpoint_dir`` (a directory that outlives the task's temporary output directory so an interrupted task
+    resumes; default: inside ``out_dir``, i.e. no resume). The old names ``dataset`` and ``sample_seed`` are
+    accepted until pbicrl 0.3 with a :class:`~pbicrl.errors.PbicrlWarning`.
     """
+    from pbicrl.config import ConfigError
+
+    config = dict(config)
+    for old, new in (("dataset", "data"), ("sample_seed", "demos_seed")):
+        if old in config:
+            if new in config:
+                raise ConfigError(f"{old}: deprecated name of '{new}', which is given too; keep only '{new}'")
+            from pbicrl.errors import warn
+
+            warn(f"ICL task key '{old}' is deprecated and will be removed in pbicrl 0.3: use '{new}'")
+            config[new] = config.pop(old)
     env = config.get("env")
     if env not in ENVS:
         raise ValueError(f"env: expected one of {ENVS}, got {env!r}")
@@ -925,16 +930,16 @@ def run_icl_task(config: dict, out_dir: Path) -> dict[str, Any]:
         base.update(over)
         cfg = ICLConfig.from_dict(base)
     seed = int(config.get("seed", 0))
-    data = config.get("dataset")
+    data = config.get("data")
     if data == "scripted":
         if env != "point_mass":
-            raise ValueError("dataset: 'scripted' exists only for env point_mass")
-        expert = point_mass_expert_demos(int(config.get("n_expert", 200) or 200), seed=int(config.get("sample_seed", 0)))
+            raise ValueError("data: 'scripted' exists only for env point_mass")
+        expert = point_mass_expert_demos(int(config.get("n_expert", 200) or 200), seed=int(config.get("demos_seed", 0)))
     elif data:
         expert = expert_coordinates(data, group=int(config.get("expert_group", 1)),
-                                    n=config.get("n_expert", 200), seed=int(config.get("sample_seed", 0)))
+                                    n=config.get("n_expert", 200), seed=int(config.get("demos_seed", 0)))
     else:
-        raise ValueError("dataset: required (path of a dataset with states, or 'scripted' for point_mass)")
+        raise ValueError("data: required (path of a dataset with states, or 'scripted' for point_mass)")
     run_dir = Path(config["checkpoint_dir"]) if config.get("checkpoint_dir") else Path(out_dir) / "icl"
     summary = run_icl(env, expert, cfg, run_dir, seed=seed, progress=bool(config.get("progress", False)))
     if run_dir != Path(out_dir) / "icl":

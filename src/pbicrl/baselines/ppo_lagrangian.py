@@ -4,7 +4,8 @@ The constrained problem is :math:`\\max_\\pi J_r(\\pi)` subject to
 :math:`J_c(\\pi) = \\mathbb{E}[\\sum_t \\gamma_c^t c(s_{t+1})] \\le \\beta`. PPO optimises the Lagrangian with
 the combined advantage :math:`(A_r - \\lambda A_c) / (1 + \\lambda)`; after every rollout the multiplier takes
 a projected gradient step on the *expected discounted cost* of the episodes that finished in it
-(:func:`lagrange_update`): it rises while :math:`\\hat J_c > \\beta` and falls (to no less than 0) otherwise.
+(or their plain cost sum, ``PPOLagConfig.episode_cost="sum"``; :func:`lagrange_update`): it rises while
+:math:`\\hat J_c > \\beta` and falls (to no less than 0) otherwise.
 (The ICL authors' public code drives the multiplier with the episode reward; we use the cost, as the
 Lagrangian method prescribes.)
 
@@ -85,6 +86,10 @@ class PPOLagConfig:
         Running observation normalisation; reward scaling by the running std of the discounted return.
     torch_threads : int
         ``torch.set_num_threads`` (1: fastest for these small networks on a shared CPU).
+    episode_cost : {"discounted", "sum"}
+        What the multiplier compares with ``cost_budget``: the discounted episode cost
+        :math:`\\sum_t \\gamma_c^t c_t` (default, as ICL) or its plain sum :math:`\\sum_t c_t` (a budget on
+        the expected cost per episode; the cost critic stays discounted with ``cost_gamma``).
     """
 
     n_envs: int = 4
@@ -109,6 +114,7 @@ class PPOLagConfig:
     normalize_obs: bool = True
     scale_reward: bool = True
     torch_threads: int = 1
+    episode_cost: str = "discounted"
 
     def validate(self) -> PPOLagConfig:
         """Check every option; raise ValueError naming the bad one. Returns self."""
@@ -128,6 +134,8 @@ class PPOLagConfig:
             v = getattr(self, name)
             if not (math.isfinite(float(v)) and float(v) >= 0):
                 raise ValueError(f"ppo.{name}: must be a finite number >= 0, got {v!r}")
+        if self.episode_cost not in ("discounted", "sum"):
+            raise ValueError(f"ppo.episode_cost: must be 'discounted' or 'sum', got {self.episode_cost!r}")
         if self.target_kl is not None and not float(self.target_kl) > 0:
             raise ValueError(f"ppo.target_kl: must be > 0 or None, got {self.target_kl!r}")
         hidden = tuple(int(h) for h in self.hidden)
@@ -140,6 +148,10 @@ class PPOLagConfig:
         """JSON-ready dict."""
         d = asdict(self)
         d["hidden"] = list(self.hidden)
+        if d["episode_cost"] == "discounted":
+            # absent at its default, so configs (and the hashes and checkpoints keyed on them) made before
+            # the option existed stay equal
+            del d["episode_cost"]
         return d
 
 
@@ -247,7 +259,7 @@ class ActorCritic(nn.Module):
 class _EpisodeStats:
     returns: list[float] = field(default_factory=list)
     lengths: list[int] = field(default_factory=list)
-    costs: list[float] = field(default_factory=list)  # discounted learned cost
+    costs: list[float] = field(default_factory=list)  # episode cost (discounted unless episode_cost="sum")
     max_coord: list[float] = field(default_factory=list)
 
 
@@ -401,11 +413,12 @@ class PPOLagrangian:
             raise FloatingPointError("cost_fn returned non-finite costs")
         # episode cost bookkeeping (discounted, learned cost) for the multiplier
         finished_costs = []
+        ep_gamma = cfg.cost_gamma if cfg.episode_cost == "discounted" else 1.0
         for t in range(T):
             for i in range(E):
                 self._ep_costs[i].append(cost[t, i])
                 if done_buf[t, i]:
-                    finished_costs.append(discounted_sum(np.asarray(self._ep_costs[i]), cfg.cost_gamma))
+                    finished_costs.append(discounted_sum(np.asarray(self._ep_costs[i]), ep_gamma))
                     self._ep_costs[i] = []
         self.stats.costs.extend(finished_costs)
         # reward scaling by the running std of the discounted return

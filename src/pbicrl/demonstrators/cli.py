@@ -89,9 +89,9 @@ def _cmd_demos_wall(args: argparse.Namespace) -> int:
 
 def _cmd_plot_wall(args: argparse.Namespace) -> int:
     from pbicrl.demonstrators.wall import plot_wall_visitation
-    from pbicrl.envs.mujoco_wall import _get_spec
+    from pbicrl.envs.mujoco_wall import wall_spec
 
-    wall = args.wall_x if args.wall_x is not None else _get_spec(args.env).wall_x
+    wall = args.wall_x if args.wall_x is not None else wall_spec(args.env).wall_x
     print(plot_wall_visitation(args.dataset, wall, args.out, title=args.title or args.env))
     return 0
 

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl._atomic import atomic_path, write_text
 from pbicrl.data import Dataset
 
 __all__ = [
@@ -534,7 +535,7 @@ def generate_navigation_demos(env: str, good_policy: str | os.PathLike | None, v
         path = ds.save(out)
         report["file"] = path.name
         report["file_bytes"] = path.stat().st_size
-        _write_text_atomic(path.with_suffix(".json"), json.dumps(report, indent=2, sort_keys=True) + "\n")
+        write_text(path.with_suffix(".json"), json.dumps(report, indent=2, sort_keys=True) + "\n")
     environment.close()
     if return_episodes:
         return ds, report, episodes
@@ -821,16 +822,12 @@ def generate_paper_protocol_demos(env: str, good_policy: str | os.PathLike, viol
         path = ds.save(out)
         report["file"] = path.name
         report["file_bytes"] = path.stat().st_size
-        _write_text_atomic(path.with_suffix(".json"), json.dumps(report, indent=2, sort_keys=True) + "\n")
+        write_text(path.with_suffix(".json"), json.dumps(report, indent=2, sort_keys=True) + "\n")
     if return_episodes:
         return ds, report, episodes
     return ds, report
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 _GROUP_COLOURS = {1: "tab:green", 2: "tab:orange", 3: "tab:red"}
@@ -921,9 +918,7 @@ def plot_navigation_demos(dataset: Dataset | str | os.PathLike, env: str, out: s
     fig.suptitle(title or f"{env} demonstrations by group")
     fig.tight_layout()
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.tmp.png")
-    fig.savefig(tmp, dpi=120)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
-    os.replace(tmp, out)
     return out

@@ -136,7 +136,8 @@ def _atomic_model_save(obj: Any, path: Path) -> None:
 
 
 def load_policy(path: str | os.PathLike, device: str = "cpu") -> Any:
-    """Load a ``policy.zip`` written by :func:`train_sac`.
+    """Load a ``policy.zip`` written by :func:`train_sac`, or the policy of a full SB3 ``model.zip`` (a
+    checkpoint, e.g. ``training/<run>/model.zip``).
 
     Returns
     -------
@@ -149,7 +150,12 @@ def load_policy(path: str | os.PathLike, device: str = "cpu") -> Any:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"policy: no such file {path}")
-    policy = SACPolicy.load(str(path), device=device)
+    if _is_policy_only(path):
+        policy = SACPolicy.load(str(path), device=device)
+    else:  # a whole model (networks, optimisers, hyperparameters): its policy is all we act with
+        from stable_baselines3 import SAC
+
+        policy = SAC.load(str(path), device=device).policy
     policy.set_training_mode(False)
     return policy
 

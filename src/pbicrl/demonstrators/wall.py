@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from pbicrl._atomic import atomic_path
+
 __all__ = ["MODES", "generate_wall_demos", "plot_wall_visitation", "train_wall_policy"]
 
 MODES = ("good", "violating")
@@ -70,10 +72,10 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
         Path of the trained ``policy.zip``.
     """
     from pbicrl.demonstrators.sac import train_sac
-    from pbicrl.envs.mujoco_wall import WALL_SPECS, _get_spec
+    from pbicrl.envs.mujoco_wall import WALL_SPECS, wall_spec
 
     constrained = _check_mode(mode)
-    spec = _get_spec(name)
+    spec = wall_spec(name)
     meta = {"env": name, "base_env_id": spec.env_id, "mode": mode, "constrained_reward": constrained,
             "wall_x": spec.wall_x, "penalty": spec.penalty, "alive_bonus": spec.alive_bonus,
             "make_kwargs": spec.make_kwargs, "max_episode_steps": max_episode_steps,
@@ -153,12 +155,12 @@ def generate_wall_demos(name: str, good_policy: str | os.PathLike, violating_pol
     from pbicrl.envs.mujoco_wall import (
         FEATURE_NAMES,
         NOMINAL_WEIGHTS,
-        _get_spec,
+        wall_spec,
         make_wall_env,
         rollout_wall_env,
     )
 
-    spec = _get_spec(name)
+    spec = wall_spec(name)
     if int(n_per_group) < 1:
         raise ValueError(f"n_per_group: must be >= 1, got {n_per_group}")
     torch.manual_seed(seed)
@@ -267,9 +269,7 @@ def plot_wall_visitation(dataset: Any, wall_x: float, out_png: str | os.PathLike
     ax.legend(fontsize=8)
     fig.tight_layout()
     out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_png.with_name(f".{out_png.stem}.tmp.png")
-    fig.savefig(tmp, dpi=120)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
-    os.replace(tmp, out_png)
     return out_png

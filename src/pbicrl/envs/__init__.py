@@ -33,6 +33,8 @@ _LAZY: dict[str, str] = {
     "NavigationTask": "regions",
     "register_envs": "registration",
     "patch_gymnasium_robotics": "_mujoco_compat",
+    # a per-step cost (info["cost"]) from an inferred constraint, for constrained RL
+    "InferredConstraintCost": "inferred_cost",
 }
 
 __all__ = sorted(_LAZY)

@@ -31,13 +31,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from pbicrl._argtypes import positive_int as _positive_int
+from pbicrl._atomic import copy_file
 
 __all__ = ["DATA_DIR", "add_subcommands", "build_parser", "main", "shipped_policy"]
 
@@ -62,13 +61,6 @@ def shipped_policy(env: str, role: str) -> Path:
     if role not in ("good", "violating"):
         raise ValueError(f"role: expected 'good' or 'violating', got {role!r}")
     return DATA_DIR / "policies" / f"{env}_{role}.zip"
-
-
-def _copy_atomic(src: Path, dst: Path) -> None:
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    shutil.copyfile(src, tmp)
-    os.replace(tmp, dst)
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
@@ -100,8 +92,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         return 130
     if args.ship is not None:
         stem = f"{args.env}_{_ROLE[args.reward]}"
-        _copy_atomic(policy, Path(args.ship) / f"{stem}.zip")
-        _copy_atomic(Path(out) / "budget.json", Path(args.ship) / f"{stem}.budget.json")
+        copy_file(policy, Path(args.ship) / f"{stem}.zip")
+        copy_file(Path(out) / "budget.json", Path(args.ship) / f"{stem}.budget.json")
     print(policy)
     return 0
 

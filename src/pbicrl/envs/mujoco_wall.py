@@ -60,6 +60,7 @@ __all__ = [
     "WallSpec",
     "make_wall_env",
     "rollout_wall_env",
+    "wall_spec",
 ]
 
 FEATURE_NAMES: tuple[str, str] = ("forward_displacement", "action_sq_norm")
@@ -109,7 +110,8 @@ WALL_SPECS: dict[str, WallSpec] = {
 }
 
 
-def _get_spec(name: str) -> WallSpec:
+def wall_spec(name: str) -> WallSpec:
+    """The :class:`WallSpec` of a wall environment by name (``halfcheetah``, ``ant``; any case)."""
     try:
         return WALL_SPECS[name.lower()]
     except KeyError:
@@ -212,7 +214,7 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
     gymnasium.Env
         ``TimeLimit(WallPenaltyWrapper(base_env))``.
     """
-    spec = _get_spec(name)
+    spec = wall_spec(name)
     if int(max_episode_steps) < 1:
         raise ValueError(f"max_episode_steps: must be >= 1, got {max_episode_steps}")
     kwargs = {**spec.make_kwargs, **overrides}

@@ -26,7 +26,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Generator, Iterator, Sequence
 
-from pbicrl.experiments.tasks import _TMP_PREFIX, Task, clean_stale_temp_dirs, execute_task, write_shipped
+from pbicrl.experiments.tasks import Task, clean_stale_temp_dirs, execute_task, started_hashes, write_shipped
 
 __all__ = ["Executor", "SerialExecutor", "LocalExecutor", "RayExecutor", "make_executor", "EXECUTORS"]
 
@@ -116,7 +116,7 @@ class LocalExecutor(Executor):
     def __init__(self, max_workers: int | None = None, *, start_method: str | None = None):
         n = (os.cpu_count() or 1) if max_workers is None else int(max_workers)
         if n < 1:
-            raise ValueError(f"--workers: expected a positive integer, got {max_workers}")
+            raise ValueError(f"workers: expected a positive integer, got {max_workers}")
         self.max_workers = n
         if start_method is None:
             start_method = "fork" if "fork" in mp.get_all_start_methods() else None
@@ -177,7 +177,7 @@ class LocalExecutor(Executor):
         if not cut:
             return [], [], progressed
         # A task has started iff its temporary directory exists (the first thing a worker creates).
-        began = {p.name[len(_TMP_PREFIX):].split(".")[0] for p in root.glob(f"{_TMP_PREFIX}*")}
+        began = started_hashes(root)
         clean_stale_temp_dirs(root)
         started = [t for t in cut if t.config_hash[:12] in began]
         return started, [t for t in cut if t.config_hash[:12] not in began], progressed
@@ -200,7 +200,7 @@ def _import_ray() -> Any:
     try:
         import ray
     except ImportError:
-        raise ImportError('--executor ray needs Ray: pip install "pbicrl[ray]"') from None
+        raise ImportError('the ray executor needs Ray: pip install "pbicrl[ray]"') from None
     return ray
 
 
@@ -301,15 +301,15 @@ def make_executor(kind: str | None = None, workers: int | None = None, *, addres
     if kind is None:
         kind = "ray" if (address or os.environ.get("RAY_ADDRESS")) else "local"
     if workers is not None and int(workers) < 1:
-        raise ValueError(f"--workers: expected a positive integer, got {workers}")
+        raise ValueError(f"workers: expected a positive integer, got {workers}")
     if kind == "local":
         return LocalExecutor(workers)
     if kind == "serial":
         if workers not in (None, 1):
-            raise ValueError(f"--workers: the serial executor runs one task at a time, got {workers}")
+            raise ValueError(f"workers: the serial executor runs one task at a time, got {workers}")
         return SerialExecutor()
     if kind == "ray":
         _import_ray()
         remote = address or os.environ.get("RAY_ADDRESS")
         return RayExecutor(address, num_cpus=None if remote else workers, max_in_flight=workers if remote else None)
-    raise ValueError(f"--executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")
+    raise ValueError(f"executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")

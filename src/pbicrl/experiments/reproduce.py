@@ -1,9 +1,10 @@
 """``pbicrl reproduce``: the paper's experiments on the shipped demonstrations, each number next to the paper's.
 
-Every experiment expands into independent runs (one MCMC chain each: a dataset subsample, a method, margins,
-a seed) executed as tasks (:mod:`pbicrl.experiments.tasks`) on the local process pool or Ray, so a killed
-reproduction resumes where it stopped. Each writes ``<out>/<experiment>/report.md``, ``results.json`` and PNG
-figures. Protocols: ``all`` (every cross-group pair of the N demonstrations per group, paper Eq. 7) or
+Every experiment expands into independent runs (one MCMC chain each: a dataset subsample, a sampler, margins,
+a seed), each an ``infer`` task (:mod:`pbicrl.experiments.tasks`, the kind sweeps use, with the settings of
+:class:`pbicrl.config.InferConfig`) on the local process pool or Ray, so a killed reproduction resumes where
+it stopped. Each writes ``<out>/<experiment>/report.md``, ``results.json`` and PNG figures. Pairs (``--pairs``,
+formerly ``--protocol``): ``all`` (every cross-group pair of the N demonstrations per group, paper Eq. 7) or
 ``sampled`` (N random pairs per group pair, as the authors' code did).
 """
 
@@ -40,67 +41,35 @@ PAPER: dict[str, Any] = {
 
 # --------------------------------------------------------------------------------------------- one run
 def run_unit(config: dict, out_dir: Path) -> dict[str, Any]:
-    """One chain on one dataset subsample (a task: config in, ``summary.json`` out)."""
-    from pbicrl.api import infer
-    from pbicrl.data import resolve_dataset_path as _resolve_data
-    from pbicrl.data import load_dataset
-    from pbicrl.priors import WeightPrior
+    """Deprecated (until pbicrl 0.3): a run of the retired ``reproduce-run`` task kind, in its old names.
 
-    ds = load_dataset(_resolve_data(Path(config["dataset"])))
-    if config.get("n_per_group"):
-        ds = ds.sample_per_group(int(config["n_per_group"]), seed=int(config.get("sample_seed", 0)))
-    prior = config.get("prior", "flat")
-    # The paper's rows: its flat prior (improper for Algorithms 1 and 3) over both signs, its Eq. 7 likelihood.
-    # Rows with "likelihood": "grouped" and "prior": "default" are pbicrl's default model.
-    if prior == "default":
-        wp = WeightPrior()
-    elif prior == "improper":
-        wp = WeightPrior("improper", sign="any")
-    else:
-        wp = WeightPrior(prior, *config.get("prior_bounds", (-1000.0, 1000.0)), sign="any")
-    likelihood = config.get("likelihood", "pairwise")
-    pairs = config.get("pairs", "all") if likelihood == "pairwise" else None
-    t0 = time.perf_counter()
-    import warnings
+    Runs :func:`pbicrl.experiments.tasks.run_infer` on the same settings in :class:`~pbicrl.config.InferConfig`'s
+    names (:func:`~pbicrl.experiments.tasks.infer_config_of_reproduce_run`): the same draws.
+    """
+    from pbicrl.errors import warn
+    from pbicrl.experiments.tasks import infer_config_of_reproduce_run, prepare_infer, run_infer
 
-    from pbicrl.errors import PbicrlWarning
-
-    with warnings.catch_warnings():  # one run of many: the report states what matters, not each run's warnings
-        warnings.simplefilter("ignore", PbicrlWarning)
-        post = _infer_unit(infer, ds, config, wp, likelihood, pairs)
-    runtime = time.perf_counter() - t0
-    return _unit_result(post, ds, runtime, out_dir)
+    warn("run_unit is deprecated and will be removed in pbicrl 0.3: reproductions are 'infer' tasks "
+         "(pbicrl.experiments.tasks.run_infer)")
+    return run_infer(prepare_infer(infer_config_of_reproduce_run(config)), out_dir)
 
 
-def _infer_unit(infer: Any, ds: Any, config: dict, wp: Any, likelihood: str, pairs: Any) -> Any:
-    return infer(ds, method=config["method"], margins=config.get("margins"), pairs=pairs, likelihood=likelihood,
-                 pairs_seed=int(config.get("sample_seed", 0)), n_iterations=int(config["iterations"]),
-                 n_chains=int(config.get("chains", 1)), n_jobs=1, seed=int(config["seed"]),
-                 sigma=float(config.get("sigma") or 0.1), f_s=int(config.get("f_s", 4)),
-                 init_range=tuple(config.get("init_range") or (-30.0, -1.0)),
-                 sigma_theta=float(config.get("sigma_theta", 0.5)), init_scale=float(config.get("init_scale", 1.0)),
-                 weight_prior=wp, constraints=config.get("constraints"), candidates=config.get("candidates"),
-                 nominal_weights=config.get("nominal_weights"), progress=False)
+# Settings of the models the reports compare, in InferConfig's names; every run is one chain.
+_PAPER_PRIOR = {"prior": "improper", "penalty_sign": "any"}  # the paper's flat improper prior (Algorithms 1-3)
+_FLAT_PRIOR = {"prior": "flat", "prior_low": -1000.0, "prior_high": 1000.0, "penalty_sign": "any"}
+_DEFAULT_MODEL = {"likelihood": "grouped", "chains": 1}  # pbicrl's default: grouped likelihood, half-t prior
+_NOT_DEFAULT = ("pairs", *_PAPER_PRIOR, *_FLAT_PRIOR)  # settings a default-model row drops (takes the defaults)
+_BOOKKEEPING = ("label", "n", "wall")  # keys of a run's config that only the report reads (not settings)
 
 
-def _unit_result(post: Any, ds: Any, runtime: float, out_dir: Path) -> dict[str, Any]:
-    post.save(out_dir, overwrite=True)
-    from pbicrl.margins import _weights_of, group_mean_returns
+def _pairwise(pairs: str | int) -> dict[str, Any]:
+    """The paper's likelihood (Eq. 7) over ``pairs``, one chain."""
+    return {"likelihood": "pairwise", "pairs": pairs, "chains": 1}
 
-    nominal = ds.nominal_weights if ds.nominal_weights is not None else np.zeros(ds.n_features)
-    w, cols = _weights_of(post, ds, nominal, "map")
-    w_sel, cols_sel = _weights_of(post, ds, nominal, "selected")
-    sel_eff, sel_theta = post.point_estimate("selected")
-    return {"selected_effective_penalty": [float(x) for x in np.nan_to_num(sel_eff)],
-            "selected_indicators": (post.p_constraint > 0.5).astype(int).tolist(),
-            "selected_parameters": [None if not np.isfinite(x) else float(x) for x in np.atleast_1d(sel_theta)],
-            "group_means_selected": group_mean_returns(ds, w_sel, cols_sel).tolist(),
-            "map_effective_penalty": post.map_effective_penalty.tolist(),
-            "map_indicators": post.map_indicators.astype(int).tolist(),
-            "map_parameters": [None if not np.isfinite(x) else float(x) for x in post.map_parameters_active],
-            "mean_effective_penalty": post.mean_effective_penalty.tolist(),
-            "p_constraint": post.p_constraint.tolist(), "group_means_map": group_mean_returns(ds, w, cols).tolist(),
-            "runtime_s": runtime, "n_pairs": int(post.settings["n_pairs"]), "feature_names": list(post.feature_names)}
+
+def _subsample(n: int, seed: int) -> dict[str, Any]:
+    """``n`` demonstrations per group drawn with ``seed``, which also draws the pairs (``pairs`` a number)."""
+    return {"demos_per_group": n, "demos_seed": seed, "pairs_seed": seed}
 
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -108,13 +77,13 @@ def _unit_result(post: Any, ds: Any, runtime: float, out_dir: Path) -> dict[str,
 class Context:
     out: Path
     quick: bool
-    protocol: str
+    pairs: str  # "all" or "sampled"
     seeds: int
     executor: Any
     workers: int | None
     progress: bool
     iterations_override: int | None = None
-    datasets: dict[str, str] | None = None
+    data: dict[str, str] | None = None
 
     @property
     def iterations(self) -> int:
@@ -124,39 +93,32 @@ class Context:
 
     def dataset(self, name: str) -> str:
         """Path of the dataset for ``name`` (a user override, else the shipped one)."""
-        if self.datasets and name in self.datasets:
-            return str(Path(self.datasets[name]).resolve())
+        if self.data and name in self.data:
+            return str(Path(self.data[name]).resolve())
         if not _has_data(name):
             raise FileNotFoundError(f"the shipped dataset '{name}.npz' is missing; regenerate it with "
                                     f"'pbicrl envs demos' (see README) or pass --data {name}=PATH")
         return str(Path(__file__).resolve().parents[1] / "data" / f"{name}.npz")
 
-    def pairs(self, n_per_group: int) -> str | int:
-        return "all" if self.protocol == "all" else int(n_per_group)
-
-
-def _prepare_unit(config: dict) -> dict:
-    """Hash the dataset's content, not its path: moving the checkout does not invalidate finished runs."""
-    from pbicrl.data import resolve_dataset_path as _resolve_data
-    from pbicrl.experiments.tasks import _file_sha256
-
-    config = dict(config)
-    config["dataset_sha256"] = _file_sha256(_resolve_data(Path(config["dataset"])))
-    return config
+    def pairs_for(self, n_per_group: int) -> str | int:
+        """``pairs`` setting of a run with ``n_per_group`` demonstrations per group."""
+        return "all" if self.pairs == "all" else int(n_per_group)
 
 
 def _run(ctx: Context, configs: list[dict], names: list[str]) -> list[dict]:
+    """Run ``infer`` tasks (the configs less their :data:`_BOOKKEEPING` keys); their results in order, each with
+    the run's ``runtime_s``."""
     from pbicrl.experiments.sweep import run_tasks
-    from pbicrl.experiments.tasks import Task, register_task
+    from pbicrl.experiments.tasks import Task
 
-    register_task("reproduce-run", run_unit, prepare=_prepare_unit, unhashed=("dataset", "label"), replace=True)
-    tasks = [Task("reproduce-run", c, name=n) for c, n in zip(configs, names)]
+    tasks = [Task("infer", {k: v for k, v in c.items() if k not in _BOOKKEEPING}, name=n)
+             for c, n in zip(configs, names)]
     res = run_tasks(tasks, ctx.out / "runs", ctx.executor, workers=ctx.workers, progress=ctx.progress, manifest=False)
     out = []
     for r in res.records:
         if r.status == "failed":
             raise RuntimeError(f"reproduce: run {r.task.dir_name} failed: {r.error}")
-        out.append(r.result)
+        out.append(dict(r.result) | {"runtime_s": r.runtime_s})  # the task's wall time (load, sample, save)
     return out
 
 
@@ -194,12 +156,10 @@ def _write_report(ctx: Context, name: str, title: str, lines: list[str], results
     body = [f"# {title}", "", *lines, ""]
     for f in figs:
         body += [f"![{f}]({f})", ""]
-    tmp = d / ".report.md.tmp"
-    tmp.write_text("\n".join(body))
-    tmp.replace(d / "report.md")
-    tmpj = d / ".results.json.tmp"
-    tmpj.write_text(json.dumps(results, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
-    tmpj.replace(d / "results.json")
+    from pbicrl._atomic import write_json, write_text
+
+    write_text(d / "report.md", "\n".join(body))
+    write_json(d / "results.json", results, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
     return d / "report.md"
 
 
@@ -235,8 +195,8 @@ def exp_grid(ctx: Context) -> Path:
     configs, names = [], []
     for label, m in (("BPL", None), ("BPL with margins", margins)):
         for s in range(runs):
-            configs.append({"dataset": str(path), "method": "bpl", "margins": m, "iterations": ctx.iterations // 4,
-                            "seed": s, "sigma": 0.1, "prior": "improper", "label": label})
+            configs.append({"data": str(path), "sampler": "bpl", "margins": m, "iterations": ctx.iterations // 4,
+                            "seed": s, "sigma": 0.1, **_pairwise("all"), **_PAPER_PRIOR, "label": label})
             names.append(f"grid-{'m' if m else 'nom'}")
     res = _run(ctx, configs, names)
     feats = list(ds.feature_names)
@@ -287,12 +247,12 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     true_pen = true_w - wn
     pm = paper["margins"]
     paper_margins = [[0, pm["m12"], pm["m13"]], [0, 0, pm["m23"]], [0, 0, 0]]
-    # Margin tuning, automated: on seed 0's subsample, paper Algorithm 1, shorter runs.
+    # Margin tuning, automated: on seed 0's subsample, paper Algorithm 1 with its Eq. 7 (the rows it feeds), shorter runs.
     ds0 = full.sample_per_group(n, seed=0)
     t0 = time.perf_counter()
     tuning = tune_margins(ds0, paper["relation"], gap_grid=(0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0),
-                          method="paper", n_iterations=max(20_000, ctx.iterations // 10), n_chains=1, n_jobs=1,
-                          seed=0, pairs=ctx.pairs(n), progress=ctx.progress)
+                          sampler="paper", iterations=max(20_000, ctx.iterations // 10), chains=1, jobs=1,
+                          seed=0, pairs=ctx.pairs_for(n), likelihood="pairwise", progress=ctx.progress)
     tune_s = time.perf_counter() - t0
     tuned = tuning.margins.matrix.tolist()
     methods = [("BPL", "bpl", None), ("PBICRL, m = 0", "paper", None), ("PBICRL, tuned margins", "paper", tuned),
@@ -303,21 +263,22 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     configs, names = [], []
     for label, method, m in methods:
         for s in range(ctx.seeds):
-            cfg = {"dataset": dataset, "n_per_group": n, "sample_seed": s, "method": method, "margins": m,
-                   "iterations": ctx.iterations, "seed": s, "sigma": 0.1, "f_s": 4, "pairs": ctx.pairs(n),
-                   "prior": "improper" if method in ("bpl", "paper", "authors") else "flat", "label": label}
+            cfg = {"data": dataset, **_subsample(n, s), "sampler": method, "margins": m,
+                   "iterations": ctx.iterations, "seed": s, "sigma": 0.1, "f_s": 4, **_pairwise(ctx.pairs_for(n)),
+                   **(_PAPER_PRIOR if method in ("bpl", "paper", "authors") else _FLAT_PRIOR), "label": label}
             if method == "authors":
                 cfg["init_range"] = list(paper["authors_init_range"])
             if method == "default":  # pbicrl's defaults on the same subsample: grouped likelihood, half-t prior
-                cfg.update({"method": "pbicrl", "likelihood": "grouped", "prior": "default", "pairs": None})
+                cfg = {k: v for k, v in cfg.items() if k not in _NOT_DEFAULT}
+                cfg.update({"sampler": "pbicrl", **_DEFAULT_MODEL})
             configs.append(cfg)
             names.append(f"{name}-{method}")
     res = _run(ctx, configs, names)
-    feats = res[0]["feature_names"]
+    feats = res[0]["features"]
     rows: dict[str, Any] = {}
     lines = [f"{n} demonstrations per group drawn from `{Path(dataset).name}` ({full.group_counts()} available), "
              f"{ctx.seeds} seeds (seed = subsample and chain seed), {ctx.iterations:,} iterations, sigma 0.1, f_s 4, "
-             f"protocol: {'all cross-group pairs (paper Eq. 7)' if ctx.protocol == 'all' else f'{n} random pairs per group pair (authors code)'}. "
+             f"pairs: {'all cross-group pairs (paper Eq. 7)' if ctx.pairs == 'all' else f'{n} random pairs per group pair (authors code)'}. "
              f"BPL and PBICRL use the paper's algorithms (3 and 1) with the flat improper prior; the 'valid RJ sampler' row uses "
              f"pbicrl's reversible-jump sampler with the flat prior on [-1000, 1000] (both signs), all with the "
              f"paper's Eq. 7. The authors'-code row is Algorithm 1 with a switched-off weight reset to 0 and initial "
@@ -400,7 +361,7 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
         plt.close(fig)
         return ["weights.png", "reward_distributions.png"]
 
-    results = {"methods": rows, "tuning": tuning.to_dict(), "paper": paper, "protocol": ctx.protocol,
+    results = {"methods": rows, "tuning": tuning.to_dict(), "paper": paper, "pairs": ctx.pairs, "protocol": ctx.pairs,
                "iterations": ctx.iterations, "seeds": ctx.seeds, "group_means_true_seed0": ds_rel}
     return _write_report(ctx, name, f"{name}: BPL vs PBICRL with and without margins", lines, results, figures)
 
@@ -414,61 +375,155 @@ def exp_fetch_reach(ctx: Context) -> Path:
 
 
 # --------------------------------------------------------------------------------------------- walls
-def _wall_configs(ctx: Context, name: str, dataset: str, n: int, seeds: int) -> tuple[list[dict], list[str]]:
+def _wall_configs(ctx: Context, name: str, dataset: str, n: int, seeds: int,
+                  model: str = "paper") -> tuple[list[dict], list[str]]:
+    """Runs of one wall experiment at ``n`` per group. ``model``: ``paper`` (Algorithm 2 with the paper's Eq. 7 and
+    flat improper prior) or ``default`` (pbicrl's default: grouped likelihood, half-t prior, reversible jump)."""
     paper = PAPER[name]
     hp = PAPER["hyperparameters"]
     configs, names = [], []
     for s in range(seeds):
-        configs.append({"dataset": dataset, "n_per_group": n, "sample_seed": s, "method": "paper", "iterations": ctx.iterations,
-                        "seed": s, "sigma": hp["sigma1_wall"], "sigma_theta": hp["sigma2_wall"], "f_s": hp["f_s_wall"],
-                        "pairs": ctx.pairs(n), "prior": "improper",
-                        "constraints": [{"family": "axis_halfspace", "dims": [0], "direction": ">=", "name": "wall"}],
-                        "n": n, "wall": paper["wall"]})
-        names.append(f"{name}-n{n}")
+        cfg = {"data": dataset, **_subsample(n, s), "sampler": "paper", "iterations": ctx.iterations,
+               "seed": s, "sigma": hp["sigma1_wall"], "sigma_theta": hp["sigma2_wall"], "f_s": hp["f_s_wall"],
+               **_pairwise(ctx.pairs_for(n)), **_PAPER_PRIOR,
+               "constraints": [{"family": "axis_halfspace", "dims": [0], "direction": ">=", "name": "wall"}],
+               "n": n, "wall": paper["wall"]}
+        if model == "default":
+            cfg = {k: v for k, v in cfg.items() if k not in _NOT_DEFAULT}
+            cfg.update({"sampler": "pbicrl", **_DEFAULT_MODEL, "label": "default"})
+        elif model != "paper":
+            raise ValueError(f"model: expected 'paper' or 'default', got {model!r}")
+        configs.append(cfg)
+        names.append(f"{name}-{'default-' if model == 'default' else ''}n{n}")
     return configs, names
 
 
-def _wall(ctx: Context, name: str, dataset: str) -> Path:
+def _wall_row(rr: list[dict], wall: float) -> dict[str, Any]:
+    """CMSE of one model at one size: the MAP location (the paper's convention) and the posterior median of the
+    wall given the wall is on (pbicrl's point estimate), with the seeds whose estimate has no wall counted apart."""
     from pbicrl.metrics import cmse_location
 
+    def cm(thetas: list[Any]) -> tuple[tuple[float, float], int]:
+        errs = [cmse_location(t, wall) for t in thetas if t is not None and math.isfinite(t)]
+        return (_ms(errs) if errs else (math.inf, math.inf)), int(len(thetas) - len(errs))
+
+    map_t = [r["map_parameters"][0] if r["map_parameters"] else None for r in rr]
+    sel_t = [r["selected_parameters"][0] if r["selected_parameters"] else None for r in rr]
+    cm_map, off_map = cm(map_t)
+    cm_sel, off_sel = cm(sel_t)
+    ident = [r.get("identified_parameters", {}).get("wall.threshold") for r in rr]
+    return {"cmse": cm_map, "theta": map_t, "wall_off_seeds": off_map,
+            "cmse_selected": cm_sel, "theta_selected": sel_t, "wall_off_seeds_selected": off_sel,
+            "theta_ci90": [r.get("parameter_ci90", [[None, None]])[0] for r in rr],
+            "p_wall": [r["p_constraint"][-1] for r in rr], "identified": ident,
+            "penalty": [r["map_effective_penalty"][-1] for r in rr],
+            "penalty_selected": [r["selected_effective_penalty"][-1] for r in rr],
+            "runtime_s": _ms([r["runtime_s"] for r in rr]), "n_pairs": rr[0]["n_pairs"]}
+
+
+def _fmt_interval(iv: Any) -> str:
+    if not iv or iv[0] is None:
+        return "-"
+    return f"({iv[0]:.2f}, {iv[1]:.3g}]"
+
+
+def _wall(ctx: Context, name: str, dataset: str) -> Path:
     dataset = ctx.dataset(dataset)
     paper = PAPER[name]
+    wall = float(paper["wall"])
     sizes = (20, 50, 100, 200)
     configs, names = [], []
-    for n in sizes:
-        c, nm = _wall_configs(ctx, name, dataset, n, ctx.seeds)
-        configs += c
-        names += nm
+    for model in ("paper", "default"):
+        for n in sizes:
+            c, nm = _wall_configs(ctx, name, dataset, n, ctx.seeds, model)
+            configs += c
+            names += nm
     res = _run(ctx, configs, names)
-    table: dict[int, Any] = {}
-    for n in sizes:
-        rr = [(r, c) for r, c in zip(res, configs) if c["n"] == n]
-        thetas = [r["map_parameters"][0] for r, _ in rr]
-        errs = [cmse_location(t, paper["wall"]) for t in thetas if t is not None]  # seeds whose MAP has a wall
-        table[n] = {"cmse": _ms(errs) if errs else (math.inf, math.inf), "theta": thetas,
-                    "wall_off_seeds": int(sum(t is None for t in thetas)),
-                    "penalty": [r["map_effective_penalty"][-1] for r, _ in rr], "runtime_s": _ms([r["runtime_s"] for r, _ in rr]),
-                    "n_pairs": rr[0][0]["n_pairs"]}
-    t100 = table[100]
-    lines = [f"Axis halfspace x >= theta inferred jointly with its penalty (paper Algorithm 2 with a schedule that "
-             f"proposes theta: sigma_1 1.0, sigma_2 0.5, f_s 3), {ctx.iterations:,} iterations, {ctx.seeds} seeds, "
-             f"good vs violating demonstrations from `{Path(dataset).name}`; protocol "
-             f"{'all pairs' if ctx.protocol == 'all' else 'N random pairs per group pair'}. True wall {paper['wall']}.", "",
+    table: dict[str, dict[int, Any]] = {"paper": {}, "default": {}}
+    for model in table:
+        for n in sizes:
+            rr = [r for r, c in zip(res, configs) if c["n"] == n and (c.get("label") == "default") == (model == "default")]
+            table[model][n] = _wall_row(rr, wall)
+    t100, d100 = table["paper"][100], table["default"][100]
+
+    def sel(e: dict) -> str:
+        return _fmt_cmse({"cmse": e["cmse_selected"], "wall_off_seeds": e["wall_off_seeds_selected"]})
+
+    lines = [f"Axis halfspace x >= theta inferred jointly with its penalty, {ctx.iterations:,} iterations, "
+             f"{ctx.seeds} seeds (seed = subsample and chain seed), good vs violating demonstrations from "
+             f"`{Path(dataset).name}`; true wall {wall:g}. Rows 'paper': Algorithm 2 with a schedule that proposes "
+             f"theta (sigma_1 1.0, sigma_2 0.5, f_s 3), Eq. 7 over "
+             f"{'all pairs' if ctx.pairs == 'all' else 'N random pairs per group pair'}, flat improper prior; its "
+             "location is the MAP draw's (the paper's convention). Rows 'default': pbicrl's default model (grouped "
+             "likelihood, half-t prior on the penalty, reversible jump) with the same proposal scales; its location "
+             "is the MAP draw's and, separately, the posterior median of theta given the wall is on.", "",
              "| | ours | paper PBICRL | paper ICL |", "|---|---|---|---|",
-             f"| CMSE (location), 100 per group | {_fmt_cmse(t100)} | {_fmt_ms(*paper['cmse'])} | {_fmt_ms(*paper['icl_cmse'])} |",
-             f"| runtime per seed (s) | {_fmt_ms(*t100['runtime_s'])} | {_fmt_ms(*paper['runtime_s'])} | {_fmt_ms(*paper['icl_runtime_s'])} |",
-             "", "Sensitivity (paper Table IV), CMSE mean ± std over seeds:", "", "| demos per group | ours | paper |", "|---|---|---|"]
+             f"| CMSE (location), 100 per group, paper Algorithm 2, MAP | {_fmt_cmse(t100)} | {_fmt_ms(*paper['cmse'])} | "
+             f"{_fmt_ms(*paper['icl_cmse'])} |",
+             f"| CMSE, 100 per group, pbicrl default, MAP | {_fmt_cmse(d100)} | | |",
+             f"| CMSE, 100 per group, pbicrl default, posterior median | {sel(d100)} | | |",
+             f"| runtime per seed (s), paper / default | {_fmt_ms(*t100['runtime_s'])} / {_fmt_ms(*d100['runtime_s'])} | "
+             f"{_fmt_ms(*paper['runtime_s'])} | {_fmt_ms(*paper['icl_runtime_s'])} |",
+             "", "Sensitivity (paper Table IV), CMSE mean ± std over seeds, and what the rankings identify "
+             "(`pbicrl identify`: the wall interval consistent with every good state outside and every violating "
+             "trajectory inside, seed 0's subsample):", "",
+             "| demos per group | paper Alg. 2, MAP | default, MAP | default, posterior median | identified (seed 0) | paper |",
+             "|---|---|---|---|---|---|"]
     for n in sizes:
-        lines.append(f"| {n} | {_fmt_cmse(table[n])} | {_fmt_ms(*paper['sensitivity'][n])} |")
+        tp, td = table["paper"][n], table["default"][n]
+        lines.append(f"| {n} | {_fmt_cmse(tp)} | {_fmt_cmse(td)} | {sel(td)} | {_fmt_interval(td['identified'][0])} | "
+                     f"{_fmt_ms(*paper['sensitivity'][n])} |")
+    found = sum(t is not None for t in t100["theta"])
     target_ok = t100["cmse"][0] <= paper["cmse"][0]
-    lines += ["", f"Target (issue): CMSE at or below the paper's ({paper['cmse'][0]}): {'met' if target_ok else 'missed'} "
+    lines += ["", f"Targets (issue): a wall in {ctx.seeds}/{ctx.seeds} seeds (paper Algorithm 2 MAP: {found}/{ctx.seeds}); "
+              f"CMSE at or below the paper's {paper['cmse'][0]} at 100 per group: {'met' if target_ok else 'missed'} "
               f"(ours {t100['cmse'][0]:.3g}). MAP thetas at 100 per group: "
-              f"{[('off' if t is None else round(t, 3)) for t in t100['theta']]} ('off': the MAP has no wall, CMSE undefined); "
-              f"MAP penalties: {np.round(t100['penalty'], 1).tolist()} (true {paper['penalty']}). "
-              "Runtimes are per chain on this machine, the paper's on theirs."]
+              f"{[('off' if t is None else round(t, 3)) for t in t100['theta']]}; default model: MAP "
+              f"{[('off' if t is None else round(t, 3)) for t in d100['theta']]}, posterior median "
+              f"{[('off' if t is None else round(t, 3)) for t in d100['theta_selected']]}, 90% intervals "
+              f"{[[None if v is None else round(v, 2) for v in iv] for iv in d100['theta_ci90']]}. "
+              "Where the wall lies inside the identified interval is not identified by the rankings: a MAP near the "
+              "interval's lower end (the furthest good state) is a property of the estimator, and the posterior "
+              "spreads over the interval. Runtimes are per chain on this machine, the paper's on theirs."]
+
+    def figures(d: Path) -> list[str]:
+        return [_sensitivity_figure(d, f"{name}_cmse.png", sizes, {"paper Alg. 2, MAP": [table["paper"][n]["cmse"] for n in sizes],
+                                                                     "default, MAP": [table["default"][n]["cmse"] for n in sizes],
+                                                                     "default, posterior median": [table["default"][n]["cmse_selected"] for n in sizes]},
+                                    paper["sensitivity"], f"{name}: CMSE of the wall location")]
+
     return _write_report(ctx, name, f"{name}: where is the wall?", lines,
-                         {"sizes": {str(k): v for k, v in table.items()}, "paper": paper, "protocol": ctx.protocol,
-                          "iterations": ctx.iterations, "seeds": ctx.seeds}, None)
+                         {"sizes": {str(k): v for k, v in table["paper"].items()},
+                          "default": {str(k): v for k, v in table["default"].items()},
+                          "paper": paper, "pairs": ctx.pairs, "protocol": ctx.pairs, "iterations": ctx.iterations,
+                          "seeds": ctx.seeds},
+                         figures)
+
+
+def _sensitivity_figure(d: Path, fname: str, sizes: Sequence[int], ours: dict[str, list[tuple[float, float]]],
+                        paper: dict[int, tuple[float, float]], title: str) -> str:
+    """Grouped bars of CMSE (mean ± std over seeds) per number of demonstrations, log scale, the paper's beside."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.4))
+    x = np.arange(len(sizes))
+    series = {**ours, "paper": [paper[n] for n in sizes]}
+    w = 0.8 / len(series)
+    for k, (label, vals) in enumerate(series.items()):
+        m = np.array([v[0] for v in vals], float)
+        sd = np.array([v[1] for v in vals], float)
+        ok = np.isfinite(m)
+        ax.bar(x[ok] - 0.4 + w * (k + 0.5), m[ok], w, yerr=np.minimum(sd[ok], m[ok] * 0.999) if label == "paper" else None,
+               label=label, color="black" if label == "paper" else None)
+    ax.set_yscale("log")
+    ax.set_xticks(x, [str(n) for n in sizes])
+    ax.set_xlabel("demonstrations per group")
+    ax.set_ylabel("CMSE (location), mean over seeds")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(d / fname, dpi=200)
+    plt.close(fig)
+    return fname
 
 
 def exp_halfcheetah(ctx: Context) -> Path:
@@ -481,9 +536,13 @@ def exp_ant(ctx: Context) -> Path:
 
 # --------------------------------------------------------------------------------------------- sensitivity
 def exp_sensitivity(ctx: Context) -> Path:
-    """Point mass and Fetch-Reach with 20/60/100 demonstrations per group, PBICRL m = 0 (appendix figure)."""
+    """Point mass and Fetch-Reach with 20/60/100 demonstrations per group (appendix figure): PBICRL (paper
+    Algorithm 1, m = 0, MAP) and pbicrl's default model (selected set, conditional medians)."""
     lines = []
     results: dict[str, Any] = {}
+    sizes = (20, 60, 100)
+    models = (("PBICRL, m = 0 (MAP)", "paper"), ("pbicrl default (selected)", "default"))
+    panels: list[tuple[str, list[str], Any, dict[str, Any]]] = []
     for name, dataset in (("point-mass", "point_mass"), ("fetch-reach", "fetch_reach")):
         try:
             dataset = ctx.dataset(dataset)
@@ -493,27 +552,76 @@ def exp_sensitivity(ctx: Context) -> Path:
         paper = PAPER[name]
         true_pen = np.array(paper["true_weights"], float) - np.array(paper["nominal_weights"], float)
         configs, names = [], []
-        for n in (20, 60, 100):
-            for s in range(ctx.seeds):
-                configs.append({"dataset": dataset, "n_per_group": n, "sample_seed": s, "method": "paper", "iterations": ctx.iterations,
-                                "seed": s, "sigma": 0.1, "f_s": 4, "pairs": ctx.pairs(n), "prior": "improper", "n": n})
-                names.append(f"sens-{name}-n{n}")
+        for _, model in models:
+            for n in sizes:
+                for s in range(ctx.seeds):
+                    cfg = {"data": dataset, **_subsample(n, s), "sampler": "paper",
+                           "iterations": ctx.iterations, "seed": s, "sigma": 0.1, "f_s": 4,
+                           **_pairwise(ctx.pairs_for(n)), **_PAPER_PRIOR, "n": n}
+                    if model == "default":
+                        cfg = {k: v for k, v in cfg.items() if k not in _NOT_DEFAULT}
+                        cfg.update({"sampler": "pbicrl", **_DEFAULT_MODEL, "label": "default"})
+                    configs.append(cfg)
+                    names.append(f"sens-{name}-{'default-' if model == 'default' else ''}n{n}")
         res = _run(ctx, configs, names)
-        feats = res[0]["feature_names"]
-        lines += [f"### {name}", "", "| demos per group | " + " | ".join(feats) + " | exact set |", "|---|" + "---|" * (len(feats) + 1),
-                  "| truth | " + " | ".join(f"{v:g}" for v in true_pen) + " | |"]
+        feats = res[0]["features"]
+        lines += [f"### {name}", "", "| model | demos per group | " + " | ".join(feats) + " | exact set |",
+                  "|---|---|" + "---|" * (len(feats) + 1),
+                  "| truth | | " + " | ".join(f"{v:g}" for v in true_pen) + " | |"]
         results[name] = {}
-        for n in (20, 60, 100):
-            rr = [r for r, c in zip(res, configs) if c["n"] == n]
-            W = np.array([r["map_effective_penalty"] for r in rr])
-            C = np.array([r["map_indicators"] for r in rr])
-            exact = int(sum(np.array_equal(c, (true_pen != 0).astype(int)) for c in C))
-            results[name][n] = {"mean": W.mean(0).tolist(), "std": W.std(0).tolist(), "exact_set": exact}
-            lines.append(f"| {n} | " + " | ".join(_fmt_ms(a, b) for a, b in zip(W.mean(0), W.std(0))) + f" | {exact}/{len(rr)} |")
+        for label, model in models:
+            results[name][model] = {}
+            for n in sizes:
+                rr = [r for r, c in zip(res, configs) if c["n"] == n and (c.get("label") == "default") == (model == "default")]
+                if model == "default":
+                    W = np.array([r["selected_effective_penalty"] for r in rr])
+                    C = np.array([r["selected_indicators"] for r in rr])
+                else:
+                    W = np.array([r["map_effective_penalty"] for r in rr])
+                    C = np.array([r["map_indicators"] for r in rr])
+                exact = int(sum(np.array_equal(c, (true_pen != 0).astype(int)) for c in C))
+                results[name][model][n] = {"mean": W.mean(0).tolist(), "std": W.std(0).tolist(), "exact_set": exact,
+                                           "per_seed": W.tolist()}
+                lines.append(f"| {label} | {n} | " + " | ".join(_fmt_ms(a, b) for a, b in zip(W.mean(0), W.std(0)))
+                             + f" | {exact}/{len(rr)} |")
+        # the paper's 'paper' rows stay under their old keys too (results.json readers of the previous version)
+        for n in sizes:
+            results[name][n] = results[name]["paper"][n]
         lines.append("")
-    lines.insert(0, f"PBICRL (paper Algorithm 1, m = 0), {ctx.iterations:,} iterations, {ctx.seeds} seeds; MAP effective penalty "
-                 "mean ± std. The paper shows this as bar plots (appendix) without printed numbers.\n")
-    return _write_report(ctx, "sensitivity", "Sensitivity to the number of demonstrations", lines, results, None)
+        panels.append((name, feats, true_pen, results[name]))
+    lines.insert(0, f"{ctx.iterations:,} iterations, {ctx.seeds} seeds (seed = subsample and chain seed). PBICRL: paper "
+                 "Algorithm 1, m = 0, Eq. 7 over all pairs, flat improper prior, MAP effective penalty. pbicrl default: "
+                 "grouped likelihood, half-t prior, reversible jump; effective penalty = conditional median for the "
+                 "selected set (P(c=1) > 0.5), 0 elsewhere. Mean ± std over seeds. The paper shows this as bar plots "
+                 "(appendix) without printed numbers; the figure below is ours in that form.\n")
+
+    def figures(d: Path) -> list[str]:
+        if not panels:
+            return []
+        plt = _plt()
+        fig, axes = plt.subplots(len(models), len(panels), figsize=(5.2 * len(panels), 3.0 * len(models)), squeeze=False)
+        for j, (name, feats, true_pen, res_n) in enumerate(panels):
+            x = np.arange(len(feats))
+            for i, (label, model) in enumerate(models):
+                ax = axes[i, j]
+                w = 0.8 / (len(sizes) + 1)
+                ax.bar(x - 0.4 + w / 2, true_pen, w, color="black", label="truth")
+                for k, n in enumerate(sizes):
+                    e = res_n[model][n]
+                    ax.bar(x - 0.4 + w * (k + 1.5), e["mean"], w, yerr=e["std"], label=f"{n} per group")
+                ax.set_xticks(x, feats, fontsize=7)
+                ax.set_yscale("symlog", linthresh=1.0)
+                ax.set_title(f"{name}: {label}", fontsize=9)
+                ax.axhline(0, color="grey", lw=0.5)
+            axes[0, j].legend(fontsize=6)
+        for ax in axes[:, 0]:
+            ax.set_ylabel("effective penalty c*w_p")
+        fig.tight_layout()
+        fig.savefig(d / "sensitivity.png", dpi=200)
+        plt.close(fig)
+        return ["sensitivity.png"]
+
+    return _write_report(ctx, "sensitivity", "Sensitivity to the number of demonstrations", lines, results, figures)
 
 
 EXPERIMENTS: dict[str, Callable[[Context], Path]] = {
@@ -522,23 +630,47 @@ EXPERIMENTS: dict[str, Callable[[Context], Path]] = {
 }
 
 
-def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = False, protocol: str = "all",
+def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = False, pairs: str = "all",
               seeds: int = 5, executor: Any = "local", workers: int | None = None, progress: bool = True,
-              iterations: int | None = None, datasets: dict[str, str] | None = None) -> list[Path]:
+              iterations: int | None = None, data: dict[str, str] | None = None, **deprecated: Any) -> list[Path]:
     """Run one experiment (or ``"all"``) and return the report paths.
 
-    ``datasets`` maps a dataset name (``point_mass``, ``fetch_reach``, ``halfcheetah``, ``ant``) to a file to use
-    instead of the shipped one; ``iterations`` overrides the paper's 400,000 (``quick``: 40,000).
+    Parameters
+    ----------
+    experiment : str
+        A key of :data:`EXPERIMENTS` or ``"all"`` (every one but ``icl``).
+    pairs : {"all", "sampled"}
+        The pairs of the paper's likelihood: every cross-group pair (Eq. 7) or N random pairs per group pair
+        with N the demonstrations per group (the authors' code). Formerly ``protocol``.
+    data : dict, optional
+        Dataset name (``point_mass``, ``fetch_reach``, ``halfcheetah``, ``ant``) -> a file to use instead of the
+        shipped one. Formerly ``datasets``.
+    iterations : int, optional
+        Overrides the paper's 400,000 per chain (``quick``: 40,000).
+    **deprecated
+        ``protocol`` and ``datasets``, accepted until pbicrl 0.3 with a :class:`~pbicrl.errors.PbicrlWarning`.
     """
-    if protocol not in ("all", "sampled"):
-        raise ValueError(f"protocol: expected 'all' or 'sampled', got {protocol!r}")
+    from pbicrl.errors import warn
+
+    for old, new in (("protocol", "pairs"), ("datasets", "data")):
+        if old in deprecated:
+            warn(f"reproduce() argument '{old}' is deprecated and will be removed in pbicrl 0.3: use '{new}'")
+            value = deprecated.pop(old)
+            if new == "pairs":
+                pairs = value
+            else:
+                data = value
+    if deprecated:
+        raise TypeError(f"reproduce() got an unexpected keyword argument {next(iter(deprecated))!r}")
+    if pairs not in ("all", "sampled"):
+        raise ValueError(f"pairs: expected 'all' or 'sampled', got {pairs!r}")
     names = [n for n in EXPERIMENTS if n != "icl"] if experiment == "all" else [experiment]  # icl: hours
     for n in names:
         if n not in EXPERIMENTS:
             raise ValueError(f"experiment: unknown {n!r}; choose one of {', '.join(EXPERIMENTS)} or all")
     if int(seeds) < 1:
         raise ValueError(f"seeds: need at least 1, got {seeds}")
-    ctx = Context(Path(out), quick, protocol, int(seeds), executor, workers, progress, iterations, datasets)
+    ctx = Context(Path(out), quick, pairs, int(seeds), executor, workers, progress, iterations, data)
     reports = []
     import warnings
 
@@ -560,6 +692,7 @@ def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = Fal
 
 
 def add_subcommands(sub: Any) -> None:
+    from pbicrl._argtypes import DeprecatedFlag
     from pbicrl._argtypes import positive_int as _positive_int
 
     p = sub.add_parser("reproduce", help="reproduce the paper's experiments on the shipped demonstrations",
@@ -567,8 +700,9 @@ def add_subcommands(sub: Any) -> None:
     p.add_argument("experiment", choices=[*EXPERIMENTS, "all"])
     p.add_argument("--out", type=Path, default=Path("results"), help="results root (default results/)")
     p.add_argument("--quick", action="store_true", help="40,000 iterations instead of 400,000 (smoke runs)")
-    p.add_argument("--protocol", choices=["all", "sampled"], default="all",
+    p.add_argument("--pairs", choices=["all", "sampled"], default="all",
                    help="all cross-group pairs (paper Eq. 7, default) or N random pairs per group pair (authors' code)")
+    p.add_argument("--protocol", dest="pairs", choices=["all", "sampled"], action=DeprecatedFlag, new="--pairs")
     p.add_argument("--seeds", type=_positive_int, default=5)
     p.add_argument("--iterations", type=_positive_int, help="iterations per chain (default: the paper's 400,000)")
     p.add_argument("--data", action="append", default=[], metavar="NAME=PATH",
@@ -580,17 +714,17 @@ def add_subcommands(sub: Any) -> None:
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    datasets = {}
+    data = {}
     for item in args.data:
         if "=" not in item:
             raise ValueError(f"--data: expected NAME=PATH, got {item!r}")
         k, v = item.split("=", 1)
         if not Path(v).exists():
             raise FileNotFoundError(f"--data: {v}: no such file")
-        datasets[k] = v
-    reproduce(args.experiment, out=args.out, quick=args.quick, protocol=args.protocol, seeds=args.seeds,
+        data[k] = v
+    reproduce(args.experiment, out=args.out, quick=args.quick, pairs=args.pairs, seeds=args.seeds,
               executor=args.executor, workers=args.workers, progress=not args.no_progress,
-              iterations=args.iterations, datasets=datasets)
+              iterations=args.iterations, data=data)
     return 0
 
 
@@ -607,12 +741,11 @@ def exp_icl(ctx: Context) -> Path:
     import os
 
     from pbicrl.experiments.sweep import run_tasks
-    from pbicrl.experiments.tasks import Task, _file_sha256, register_task
+    from pbicrl.experiments.tasks import Task, file_sha256
     from pbicrl.metrics import cmse_grid, cmse_location, halfspace_indicator
 
-    # hashed by the dataset's content (like the PBICRL runs); the checkpoint directory carries that hash too
-    register_task("reproduce-icl", "pbicrl.baselines.icl:run_icl_task", prepare=_prepare_unit,
-                  unhashed=("dataset", "checkpoint_dir"), replace=True)
+    # kind "reproduce-icl" (pbicrl.experiments.tasks) hashes the dataset's content, like the PBICRL runs; the
+    # checkpoint directory carries that hash too
     budget = os.environ.get("PBICRL_ICL_BUDGET", "default")
     if budget not in ("smoke", "default", "paper"):
         raise ValueError(f"PBICRL_ICL_BUDGET: expected smoke, default or paper, got {budget!r}")
@@ -648,12 +781,12 @@ def exp_icl(ctx: Context) -> Path:
         pb_loc = [cmse_location(t, wall) for t in pb_theta if t is not None]
         pb_grid = [cmse_grid(truth, halfspace_indicator(t)(grid) if t is not None else np.zeros_like(grid)) for t in pb_theta]
         cfg = icl_preset(budget, name)
-        sha = _file_sha256(Path(dataset))[:12]
+        sha = file_sha256(Path(dataset))[:12]
         # the preset's values are hashed too: retuning a preset must not reuse results (or checkpoints) of the old one
         cfg_sha = hashlib.sha256(json.dumps(cfg.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
         tasks = [Task("reproduce-icl",
-                      {"env": name, "dataset": dataset, "budget": budget, "budget_sha256": cfg_sha, "seed": s,
-                       "n_expert": 200, "sample_seed": s,
+                      {"env": name, "data": dataset, "budget": budget, "budget_sha256": cfg_sha, "seed": s,
+                       "n_expert": 200, "demos_seed": s,
                        "checkpoint_dir": str(ctx.out / "icl" / "checkpoints" / f"{name}-{budget}-s{s}-{sha}-{cfg_sha}")},
                       name=f"icl-{name}-{budget}") for s in range(ctx.seeds)]
         res = run_tasks(tasks, ctx.out / "runs", ctx.executor, workers=ctx.workers, progress=ctx.progress, manifest=False)

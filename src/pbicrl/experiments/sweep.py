@@ -46,15 +46,18 @@ from pathlib import Path
 from typing import Any
 
 from pbicrl._argtypes import positive_int as _positive_int
+from pbicrl._atomic import write_json
 from pbicrl.experiments.tasks import (
     RESULT_FILE,
+    OlderRuns,
     Task,
     TaskError,
+    adopt_older_runs,
     canonical_json,
-    _read_result,
     clean_stale_temp_dirs,
     find_done,
     get_task_kind,
+    read_result,
     stale_reason,
 )
 
@@ -100,6 +103,7 @@ class SweepResult:
     executor: str = ""
     wall_s: float = 0.0
     interrupted: bool = False
+    older: OlderRuns = field(default_factory=OlderRuns)
 
     @property
     def failed(self) -> list[RunRecord]:
@@ -119,16 +123,12 @@ class SweepResult:
     def to_dict(self) -> dict[str, Any]:
         return {"format": 1, "root": str(self.root), "executor": self.executor, "wall_s": self.wall_s,
                 "interrupted": self.interrupted, "counts": self.counts(),
-                "runs": [r.to_dict() for r in self.records]}
+                "runs": [r.to_dict() for r in self.records], "older_cache_versions": self.older.to_dict()}
 
     def save(self, path: str | os.PathLike[str] | None = None) -> Path:
         """Write ``sweep.json`` (default: in the results root) atomically."""
         path = Path(path) if path is not None else self.root / _MANIFEST
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        tmp.write_text(json.dumps(self.to_dict(), indent=2, default=str) + "\n")
-        os.replace(tmp, path)
-        return path
+        return write_json(path, self.to_dict(), default=str)
 
     def table(self, columns: Sequence[str] | None = None) -> str:
         """One row per run: the settings that vary, status, time and headline numbers."""
@@ -258,6 +258,8 @@ def run_tasks(
 
     root.mkdir(parents=True, exist_ok=True)
     clean_stale_temp_dirs(root)
+    result.older = adopt_older_runs(root)
+    _note_older(result.older, root, progress)
     by_hash: dict[str, list[RunRecord]] = {}
     for r in records:
         by_hash.setdefault(r.task.config_hash, []).append(r)
@@ -318,12 +320,24 @@ def run_tasks(
     return result
 
 
+def _note_older(older: OlderRuns, root: Path, progress: bool) -> None:
+    """Say which runs of older cache versions were adopted and which are kept but not reused (and why)."""
+    if not progress:
+        return  # sweep.json lists them under older_cache_versions
+    if older.adopted:
+        print(f"note: {len(older.adopted)} finished run(s) in {root} made by an older pbicrl are taken over "
+              "(settings renamed, numbers unchanged)", file=sys.stderr)
+    for d, why in older.not_reused:
+        print(f"note: {d.name}: made by an older pbicrl, not reused ({why}); kept - delete it if you no longer "
+              "need it", file=sys.stderr)
+
+
 def _note_stale(task: Task, root: Path, progress: bool) -> None:
     """Say why a finished run of the same hash is not reused (made under other defaults or cache version)."""
     d = task.out_dir(root)
     if not d.is_dir():
         return
-    rec = _read_result(d)
+    rec = read_result(d)
     reason = stale_reason(task, rec) if rec is not None else None
     if reason is not None and progress:
         print(f"note: {d.name}: cached result not reused ({reason}); running it again", file=sys.stderr)
@@ -485,10 +499,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     spec = load_sweep(args.config, out=args.out)
     if args.dry_run:
+        older = adopt_older_runs(spec.out, dry_run=True)  # what a real run would take over; nothing moves
+        _note_older(older, spec.out, True)
         records = []
         for task, point in zip(spec.tasks, spec.settings):
             done = None if args.force else find_done(task, spec.out)
-            rec = RunRecord(task, point, "cached" if done is not None else "pending")
+            taken_over = not args.force and task.out_dir(spec.out) in older.adopted
+            rec = RunRecord(task, point, "cached" if done is not None or taken_over else "pending")
             if done is not None:
                 saved = json.loads((done / RESULT_FILE).read_text())
                 rec.result, rec.runtime_s, rec.out_dir = saved.get("result"), saved.get("runtime_s"), str(done)

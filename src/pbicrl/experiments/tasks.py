@@ -9,9 +9,12 @@ version and the full config, so a sweep restarted with the same settings recogni
 them.
 
 A finished run is reused only if it was made under the same defaults: its stored cache version must be
-:data:`CACHE_VERSION` (bumped by hand when a default changes the numbers of every kind), and every setting
-it recorded must equal the current task's (so a run made under an old default of a key it did not set,
-e.g. the prior, is run again rather than silently reused; settings added since keep their default).
+:data:`CACHE_VERSION` (bumped by hand when a default changes the numbers of every kind, or when settings are
+renamed), and every setting it recorded must equal the current task's (so a run made under an old default of
+a key it did not set, e.g. the prior, is run again rather than silently reused; settings added since keep
+their default). Runs of an older cache version whose bump only renamed settings are *adopted* by
+:func:`adopt_older_runs` (renamed, re-hashed, their headline numbers recomputed from their files); the others
+are kept on disk, reported, and not reused.
 
 A kind's function has the signature ``run(config: dict, out_dir: Path) -> dict``: it writes whatever files it
 likes into ``out_dir`` (an empty directory that only becomes visible under its final name, together with
@@ -39,27 +42,35 @@ import socket
 import tempfile
 import time
 import traceback
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import dataclass, field
 from importlib import import_module
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
+from pbicrl._atomic import apply_mode, fsync_tree, pid_alive, write_json
+
 __all__ = [
     "TASK_FORMAT", "CACHE_VERSION", "RESULT_FILE", "Task", "TaskKind", "TaskError", "register_task", "get_task_kind",
     "task_kinds", "canonical_json", "in_task_worker", "task_jobs", "task_worker", "execute_task", "finalize_task",
-    "write_shipped", "find_done", "stale_reason", "load_result", "clean_stale_temp_dirs", "run_infer",
-    "prepare_infer", "run_selftest",
+    "write_shipped", "find_done", "stale_reason", "read_result", "load_result", "clean_stale_temp_dirs", "started_hashes",
+    "adopt_older_runs", "OlderRuns", "file_sha256", "prepare_data", "run_infer", "prepare_infer", "summarize_infer",
+    "infer_result", "infer_config_of_reproduce_run", "INFER_EXTRA", "run_selftest",
 ]
 
 TASK_FORMAT = 1
 """Version of the hashed task description; bump when the meaning of a config changes for every kind."""
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 """Version of the numbers finished runs hold; part of every task hash and stored in each ``result.json``.
 
 Bump it when a change of defaults (the prior, the likelihood, a sampler setting) or of the code makes
 earlier results different from what the same config gives now: finished runs of older versions are then
-run again instead of being reused. Version 2: runs cached before defaults were recorded with each run.
+run again instead of being reused. A bump that only renames settings registers a migration
+(:data:`_RENAMES`) instead, so that :func:`adopt_older_runs` takes the finished runs over.
+Version 2: runs cached before defaults were recorded with each run. Version 3: one settings vocabulary
+(:class:`pbicrl.config.InferConfig`'s names; the reproduction's ``reproduce-run`` kind became ``infer``,
+``dataset`` became ``data``, ``n_per_group`` ``demos_per_group``, ``sample_seed`` ``demos_seed``) and the
+``infer`` kind's headline numbers include the reproduction's; version-2 runs are adopted.
 """
 
 RESULT_FILE = "result.json"
@@ -100,6 +111,10 @@ class TaskKind:
         without invalidating finished runs.
     version : int
         Part of the hash: bump it when a change makes old results of this kind wrong (e.g. a new default).
+    summarize : callable, optional
+        ``summarize(config, out_dir) -> dict``: the headline numbers of a finished run computed again from its
+        files; used when a run of an older cache version is adopted (:func:`adopt_older_runs`). Without it the
+        stored numbers are kept.
     """
 
     name: str
@@ -110,6 +125,7 @@ class TaskKind:
     columns: tuple[str, ...] = ()
     defaults: Callable[[], dict] | None = None
     version: int = 1
+    summarize: Callable[[dict, Path], dict] | None = None
 
 
 _REGISTRY: dict[str, TaskKind] = {}
@@ -129,7 +145,8 @@ def _target_of(run: Callable[..., Any] | str) -> str:
 
 def register_task(name: str, run: Callable[[dict, Path], dict] | str, *, prepare: Callable[[dict], dict] | None = None,
                   unhashed: Iterable[str] = (), path_keys: Iterable[str] = (), columns: Iterable[str] = (),
-                  defaults: Callable[[], dict] | None = None, version: int = 1, replace: bool = False) -> TaskKind:
+                  defaults: Callable[[], dict] | None = None, version: int = 1,
+                  summarize: Callable[[dict, Path], dict] | None = None, replace: bool = False) -> TaskKind:
     """Register a task kind (see :class:`TaskKind`); returns it.
 
     Parameters
@@ -138,7 +155,7 @@ def register_task(name: str, run: Callable[[dict, Path], dict] | str, *, prepare
         Kind name; letters, digits, ``-``, ``_`` and ``.``.
     run : callable or str
         Top-level function ``run(config, out_dir) -> dict`` or its ``"module:function"`` path.
-    prepare, unhashed, path_keys, columns, defaults, version
+    prepare, unhashed, path_keys, columns, defaults, version, summarize
         See :class:`TaskKind`.
     replace : bool
         Allow re-registering an existing name with a different target.
@@ -146,7 +163,7 @@ def register_task(name: str, run: Callable[[dict, Path], dict] | str, *, prepare
     if not name or not all(ch.isalnum() or ch in "-_." for ch in name):
         raise TaskError(f"task kind {name!r}: use letters, digits, '-', '_' and '.'")
     kind = TaskKind(name, _target_of(run), prepare, tuple(unhashed), tuple(path_keys), tuple(columns), defaults,
-                    int(version))
+                    int(version), summarize)
     old = _REGISTRY.get(name)
     if old is not None and old.target != kind.target and not replace:
         raise TaskError(f"task kind {name!r} is already registered to {old.target}; pass replace=True")
@@ -314,7 +331,9 @@ class Task:
 
 
 # --------------------------------------------------------------------------------------------- results on disk
-def _read_result(directory: Path) -> dict | None:
+def read_result(directory: str | os.PathLike[str]) -> dict | None:
+    """The ``result.json`` record in ``directory``, or None when it is missing or unreadable."""
+    directory = Path(directory)
     try:
         return json.loads((directory / RESULT_FILE).read_text())
     except (OSError, ValueError):
@@ -361,7 +380,7 @@ def find_done(task: Task, root: str | os.PathLike[str]) -> Path | None:
     for d in candidates:
         if d.name.startswith(".") or not d.is_dir():
             continue
-        if stale_reason(task, _read_result(d)) is None:
+        if stale_reason(task, read_result(d)) is None:
             return d
     return None
 
@@ -369,23 +388,23 @@ def find_done(task: Task, root: str | os.PathLike[str]) -> Path | None:
 def load_result(task: Task, root: str | os.PathLike[str]) -> dict | None:
     """The ``result.json`` record of a finished task (``record["result"]`` is what its function returned)."""
     d = find_done(task, root)
-    return None if d is None else _read_result(d)
+    return None if d is None else read_result(d)
 
 
 def _host() -> str:
     return _safe_name(socket.gethostname()).replace(".", "_")[:40]
 
 
-def _pid_alive(pid: int) -> bool:
-    from pbicrl.data import _pid_alive as alive  # one definition of "still running" for every temporary
-
-    return alive(pid)
-
-
 def _make_temp_dir(root: Path, task: Task) -> Path:
     """A private directory ``.tmp-<hash12>.<host>.<pid>.<random>`` in ``root`` (so stale ones can be recognised)."""
     root.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix=f"{_TMP_PREFIX}{task.config_hash[:12]}.{_host()}.{os.getpid()}.", dir=root))
+
+
+def started_hashes(root: str | os.PathLike[str]) -> set[str]:
+    """The 12-character hash prefixes of the tasks that have a temporary directory under ``root`` (started,
+    not finished, or killed)."""
+    return {p.name[len(_TMP_PREFIX):].split(".")[0] for p in Path(root).glob(f"{_TMP_PREFIX}*")}
 
 
 def clean_stale_temp_dirs(root: str | os.PathLike[str]) -> list[Path]:
@@ -402,7 +421,7 @@ def clean_stale_temp_dirs(root: str | os.PathLike[str]) -> list[Path]:
         parts = p.name[len(_TMP_PREFIX):].split(".")
         if len(parts) < 4 or parts[1] != host or not parts[2].isdigit():
             continue
-        if not _pid_alive(int(parts[2])):
+        if not pid_alive(int(parts[2])):
             shutil.rmtree(p, ignore_errors=True)
             removed.append(p)
     return removed
@@ -415,22 +434,12 @@ def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s:
     kept and this copy discarded, unless ``force``.
     """
     run_dir = work / "run"
-    record = {
-        "format": TASK_FORMAT, "cache_version": CACHE_VERSION, "kind": task.kind, "target": task.target,
-        "name": task.name, "config_hash": task.config_hash, "config": task.config, "result": _plain(result, "result"),
-        "runtime_s": float(runtime_s), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "host": socket.gethostname(),
-    }
-    with open(run_dir / RESULT_FILE, "w") as fh:
-        fh.write(json.dumps(record, indent=2) + "\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(run_dir, 0o777 & ~mask)  # mkdtemp makes 0700; the results should be as readable as any new directory
+    (run_dir / RESULT_FILE).write_text(json.dumps(_record(task, result, runtime_s), indent=2) + "\n")
+    fsync_tree(run_dir)
+    apply_mode(run_dir, directory=True)  # mkdtemp makes 0700; the results should be as readable as any new directory
     final = task.out_dir(root)
     if final.exists():
-        if stale_reason(task, _read_result(final)) is None and not force:
+        if stale_reason(task, read_result(final)) is None and not force:
             shutil.rmtree(work, ignore_errors=True)
             return final
         os.replace(final, work / "old")  # stale or forced: move aside first, then the new one takes its place
@@ -438,10 +447,20 @@ def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s:
         os.replace(run_dir, final)
     except OSError:
         # Another process finished the same run between the check above and the rename: keep its copy.
-        if stale_reason(task, _read_result(final)) is not None:
+        if stale_reason(task, read_result(final)) is not None:
             raise
     shutil.rmtree(work, ignore_errors=True)
     return final
+
+
+def _record(task: Task, result: Any, runtime_s: float, **more: Any) -> dict[str, Any]:
+    """The ``result.json`` record of a finished run of ``task``."""
+    return {
+        "format": TASK_FORMAT, "cache_version": CACHE_VERSION, "kind": task.kind, "target": task.target,
+        "name": task.name, "config_hash": task.config_hash, "config": task.config, "result": _plain(result, "result"),
+        "runtime_s": float(runtime_s), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "host": socket.gethostname(),
+    } | more
 
 
 def in_task_worker() -> bool:
@@ -562,6 +581,10 @@ def write_shipped(task: Task, root: str | os.PathLike[str], outcome: dict[str, A
 # --------------------------------------------------------------------------------------------- kind "infer"
 _sha_cache: dict[tuple[str, int, int], str] = {}
 
+INFER_EXTRA: dict[str, Any] = {"demos_per_group": None, "demos_seed": 0}
+"""Settings of the ``infer`` kind besides ``data`` and the :class:`~pbicrl.config.InferConfig` fields: subsample
+``demos_per_group`` demonstrations per group (default all) with seed ``demos_seed``."""
+
 
 def _resolve_data(data: str) -> Path:
     from pbicrl.data import DatasetNotFoundError, resolve_dataset_path
@@ -572,7 +595,9 @@ def _resolve_data(data: str) -> Path:
         raise TaskError(str(exc)) from None
 
 
-def _file_sha256(path: Path) -> str:
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """SHA-256 (hex) of a file's content, cached per (path, size, modification time) in this process."""
+    path = Path(path)
     st = path.stat()
     key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
     if key not in _sha_cache:
@@ -584,102 +609,318 @@ def _file_sha256(path: Path) -> str:
     return _sha_cache[key]
 
 
-def _infer_fields() -> dict[str, Any]:
-    from pbicrl.config import InferConfig
+def prepare_data(config: dict, *, allow: tuple[str, ...] = ()) -> dict:
+    """Resolve a config's ``data`` (a dataset file or a shipped name) and record its content hash.
 
-    out = {}
-    for f in fields(InferConfig):
-        out[f.name] = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
-    return out
-
-
-_INFER_EXTRA = {"demos_per_group": None, "demos_seed": 0}
+    Returns a copy with ``data`` (an existing file by absolute path, so that workers started elsewhere find
+    it; a shipped dataset by name) and ``data_sha256``; the task kind hashes the content, not the path, so
+    moving files keeps finished runs. ``allow`` lists values of ``data`` that name no file (e.g. ICL's
+    ``"scripted"``); they pass unchanged.
+    """
+    config = dict(config)
+    if "data" not in config:
+        raise TaskError("data: missing; give a dataset .npz path or the name of a shipped dataset")
+    data = config.pop("data")
+    config.pop("data_sha256", None)
+    if not isinstance(data, str):
+        raise TaskError(f"data: expected a path or a dataset name, got {data!r}")
+    if data in allow:
+        return {"data": data} | config
+    path = _resolve_data(data)
+    if not path.is_file():
+        raise TaskError(f"data: {data}: not a regular file")
+    return {"data": str(path.resolve()) if Path(data).expanduser().is_file() else data,
+            "data_sha256": file_sha256(path)} | config
 
 
 def prepare_infer(config: dict) -> dict:
     """Validate an ``infer`` config and fill in every default (so that equivalent configs hash alike).
 
     Keys: ``data`` (a dataset .npz or the name of a shipped dataset), every :class:`~pbicrl.config.InferConfig`
-    field, ``demos_per_group`` (subsample that many demonstrations per group, default all) and ``demos_seed``.
-    The dataset's content is hashed (``data_sha256``); its path is not, so moving files keeps finished runs.
+    field (deprecated names such as ``method`` are renamed, with a :class:`~pbicrl.errors.PbicrlWarning`,
+    before hashing: the old and the new name are the same run), and :data:`INFER_EXTRA`. The dataset's
+    content is hashed (``data_sha256``); its path is not, so moving files keeps finished runs.
     """
-    from pbicrl import config as config_mod
+    from pbicrl.config import ConfigError, canonical_names, check_setting
 
     defaults = _infer_fields()
-    types = getattr(config_mod, "_TYPES", {})
-    config = dict(config)
-    if "data" not in config:
-        raise TaskError("data: missing; give a dataset .npz path or the name of a shipped dataset")
-    if not isinstance(config["data"], str):
-        raise TaskError(f"data: expected a path or a dataset name, got {config['data']!r}")
-    path = _resolve_data(config["data"])
-    if not path.is_file():
-        raise TaskError(f"data: {config['data']}: not a regular file")
-    # An existing file is stored by absolute path (workers may start elsewhere); shipped datasets by name.
-    data = config.pop("data")
-    out: dict[str, Any] = {"data": str(path.resolve()) if Path(data).expanduser().is_file() else data,
-                           "data_sha256": _file_sha256(path)}
-    config.pop("data_sha256", None)
+    try:
+        config = canonical_names(config, where="infer config key", stacklevel=4)
+    except ConfigError as exc:
+        raise TaskError(str(exc)) from None
+    out = prepare_data(config)
     for key, value in config.items():
-        if key in _INFER_EXTRA:
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "demos_per_group" else 0)):
-                raise TaskError(f"{key}: expected a {'positive' if key == 'demos_per_group' else 'non-negative'} integer, got {value!r}")
+        if key in ("data", "data_sha256"):
+            continue
+        if key in INFER_EXTRA:
+            low = 1 if key == "demos_per_group" else 0
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < low):
+                raise TaskError(f"{key}: expected a {'positive' if low else 'non-negative'} integer, got {value!r}")
             continue
         if key not in defaults:
-            known = ", ".join(sorted({"data", *defaults, *_INFER_EXTRA}))
+            known = ", ".join(sorted({"data", *defaults, *INFER_EXTRA}))
             raise TaskError(f"infer config key '{key}': unknown; known keys are {known}")
-        expected = types.get(key)
-        if value is not None and expected and (isinstance(value, bool) or not isinstance(value, expected)):
-            raise TaskError(f"infer config key '{key}': expected {' or '.join(t.__name__ for t in expected)}, got {value!r}")
-    out.update(defaults | _INFER_EXTRA | config)
-    return out
+        try:
+            check_setting(key, value, where="infer config")
+        except ConfigError as exc:
+            raise TaskError(str(exc)) from None
+    given = {k: v for k, v in config.items() if k not in ("data", "data_sha256") and v is not None}  # None: default
+    return {"data": out["data"], "data_sha256": out["data_sha256"]} | defaults | INFER_EXTRA | given
 
 
-def run_infer(config: dict, out_dir: Path) -> dict[str, Any]:
-    """Task kind ``infer``: :func:`pbicrl.api.infer_from_config` on a dataset; writes summary.json + chains.npz.
-
-    Inside an executor the chains use :func:`task_jobs` processes (usually 1: the executor already uses
-    every core); the draws do not depend on it. Returns the headline numbers (per feature, in ``features``
-    order).
-    """
-    from dataclasses import replace
-
-    from pbicrl.api import infer_from_config
+def _infer_fields() -> dict[str, Any]:
     from pbicrl.config import InferConfig
+
+    return InferConfig.defaults()
+
+
+def _infer_defaults() -> dict[str, Any]:
+    return _infer_fields() | INFER_EXTRA
+
+
+def _infer_dataset(config: Mapping[str, Any]) -> tuple[Any, Path, str]:
+    """The (subsampled) dataset of an ``infer`` config, its path and content hash (checked against the config)."""
     from pbicrl.data import load_dataset
 
     path = _resolve_data(config["data"])
-    digest = _file_sha256(path)
+    digest = file_sha256(path)
     if config.get("data_sha256") not in (None, digest):
         raise TaskError(f"data: {path} changed since the task was created (content hash differs)")
     ds = load_dataset(path)
     if config.get("demos_per_group") is not None:
         ds = ds.sample_per_group(int(config["demos_per_group"]), seed=int(config.get("demos_seed", 0)))
+    return ds, path, digest
+
+
+def run_infer(config: dict, out_dir: Path) -> dict[str, Any]:
+    """Task kind ``infer`` (sweeps and ``pbicrl reproduce``): :func:`pbicrl.api.infer_from_config` on a dataset.
+
+    Writes ``summary.json`` + ``chains.npz``. Inside an executor the chains use :func:`task_jobs` processes
+    (usually 1: the executor already uses every core); the draws do not depend on it. The posterior's
+    warnings are not printed (one run of many) but returned under ``warnings``. Returns
+    :func:`infer_result`.
+    """
+    import warnings
+    from dataclasses import replace
+
+    from pbicrl.api import infer_from_config
+    from pbicrl.config import InferConfig
+    from pbicrl.errors import PbicrlWarning
+
+    ds, path, digest = _infer_dataset(config)
     cfg = InferConfig(**{k: config[k] for k in _infer_fields() if k in config})
     if in_task_worker():
         cfg = replace(cfg, jobs=task_jobs())
-    post = infer_from_config(ds, cfg, progress=False)
+    with warnings.catch_warnings():  # one run of many: the result lists them, the terminal does not repeat them
+        warnings.simplefilter("ignore", PbicrlWarning)
+        post = infer_from_config(ds, cfg, progress=False)
     post.extra["data"]["path"] = str(path)
     post.extra["data"]["sha256"] = digest
     post.save(out_dir, overwrite=True)
+    return infer_result(post, ds)
+
+
+def summarize_infer(config: dict, out_dir: Path) -> dict[str, Any]:
+    """:func:`infer_result` of a finished ``infer`` run read back from its directory (adopting older runs)."""
+    from pbicrl.results import Posterior
+
+    ds, _, _ = _infer_dataset(config)
+    return infer_result(Posterior.load(out_dir, issue_warnings=False), ds)
+
+
+def infer_result(post: Any, dataset: Any) -> dict[str, Any]:
+    """Headline numbers of an ``infer`` run, per feature in ``features`` order.
+
+    ``p_constraint``, MAP and mean effective penalties, the selected set's effective penalties (conditional
+    medians, 0 off the set), indicators and parameters (``None`` where off), the group-mean returns under the
+    MAP and the selected weights, 90% intervals of the parameters while on, the identified parameter
+    intervals, ``map_log_posterior``, the largest finite R-hat, the acceptance rate, the number of pairs and
+    the posterior's warnings. Nothing here depends on the machine (the run's time is in ``result.json``'s
+    ``runtime_s``), so every executor gives the same numbers.
+    """
+    import numpy as np
+
+    from pbicrl.draws import SELECTION_THRESHOLD
+    from pbicrl.margins import group_mean_returns, point_weights
+
+    def finite_or_none(x: Any) -> list[float | None]:
+        return [None if not np.isfinite(v) else float(v) for v in np.atleast_1d(x)]
+
+    w, cols = point_weights(post, dataset, "map")
+    w_sel, cols_sel = point_weights(post, dataset, "selected")
+    sel_eff, sel_theta = post.point_estimate("selected")
+    pc = post.parameter_conditional()
     rhat = [r for r in post.rhat()["effective_penalty"] if math.isfinite(r)]
     return {
         "features": list(post.feature_names),
-        "p_constraint": [round(float(x), 6) for x in post.p_constraint],
+        "p_constraint": [float(x) for x in post.p_constraint],
         "map_effective_penalty": [float(x) for x in post.map_effective_penalty],
+        "map_indicators": np.asarray(post.map_indicators).astype(int).tolist(),
+        "map_parameters": finite_or_none(post.map_parameters_active),
         "mean_effective_penalty": [float(x) for x in post.mean_effective_penalty],
+        "selected_effective_penalty": [float(x) for x in np.nan_to_num(sel_eff)],
+        "selected_indicators": (post.p_constraint > SELECTION_THRESHOLD).astype(int).tolist(),
+        "selected_parameters": finite_or_none(sel_theta),
+        "group_means_map": group_mean_returns(dataset, w, cols).tolist(),
+        "group_means_selected": group_mean_returns(dataset, w_sel, cols_sel).tolist(),
+        "parameter_ci90": [list(pair) for pair in zip(finite_or_none(pc["low"]), finite_or_none(pc["high"]))],
+        "identified_parameters": dict((post.identified or {}).get("parameters") or {}),
         "map_log_posterior": float(post.map_log_posterior),
         "max_rhat": max(rhat) if rhat else None,
         "acceptance": float(post.acceptance_rate()["overall"]),
+        "n_pairs": int(post.settings.get("n_pairs") or 0),
+        "warnings": list(post.warnings()),
     }
 
 
-def _infer_defaults() -> dict[str, Any]:
-    return _infer_fields() | _INFER_EXTRA
-
-
 register_task("infer", run_infer, prepare=prepare_infer, unhashed=("data", "jobs"), path_keys=("data",),
-              columns=("p_constraint", "map_effective_penalty", "max_rhat"), defaults=_infer_defaults)
+              columns=("p_constraint", "map_effective_penalty", "max_rhat"), defaults=_infer_defaults,
+              summarize=summarize_infer)
+
+
+def _prepare_icl(config: dict) -> dict:
+    """``reproduce-icl``: the dataset's content is hashed, not its path (as for ``infer``)."""
+    return prepare_data(config, allow=("scripted",))
+
+
+register_task("reproduce-icl", "pbicrl.baselines.icl:run_icl_task", prepare=_prepare_icl,
+              unhashed=("data", "checkpoint_dir"), path_keys=("data",))
+
+
+# --------------------------------------------------------------------------------------------- older cache versions
+def infer_config_of_reproduce_run(config: Mapping[str, Any]) -> dict[str, Any]:
+    """A version-2 ``reproduce-run`` config in the ``infer`` kind's names, for the same draws.
+
+    ``reproduce-run`` ran :func:`pbicrl.api.infer` with one chain, the pairwise likelihood and a flat prior on
+    [-1000, 1000] of both signs unless told otherwise; ``sample_seed`` seeded both the subsample and the pairs;
+    ``label``, ``n`` and ``wall`` were bookkeeping of the report.
+    """
+    c = dict(config)
+    likelihood = c.get("likelihood", "pairwise")
+    out: dict[str, Any] = {
+        "data": c["dataset"], "data_sha256": c.get("dataset_sha256"), "demos_per_group": c.get("n_per_group") or None,
+        "demos_seed": int(c.get("sample_seed", 0)), "pairs_seed": int(c.get("sample_seed", 0)),
+        "sampler": c["method"], "margins": c.get("margins"), "iterations": int(c["iterations"]),
+        "chains": int(c.get("chains", 1)), "seed": int(c["seed"]), "sigma": float(c.get("sigma") or 0.1),
+        "f_s": int(c.get("f_s", 4)), "init_range": list(c.get("init_range") or (-30.0, -1.0)),
+        "sigma_theta": float(c.get("sigma_theta", 0.5)), "init_scale": float(c.get("init_scale", 1.0)),
+        "constraints": c.get("constraints"), "candidates": c.get("candidates"),
+        "nominal_weights": c.get("nominal_weights"), "likelihood": likelihood,
+        "pairs": c.get("pairs", "all") if likelihood == "pairwise" else None,
+    }
+    prior = c.get("prior", "flat")
+    if prior == "improper":
+        out |= {"prior": "improper", "penalty_sign": "any"}
+    elif prior != "default":
+        low, high = c.get("prior_bounds", (-1000.0, 1000.0))
+        out |= {"prior": prior, "prior_low": float(low), "prior_high": float(high), "penalty_sign": "any"}
+    return {k: v for k, v in out.items() if v is not None}  # None: the default
+
+
+def _rename_v2(kind: str, config: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Cache version 2 -> 3: settings renamed, no numbers changed."""
+    if kind == "reproduce-run":
+        return "infer", infer_config_of_reproduce_run(config)
+    if kind == "reproduce-icl":
+        names = {"dataset": "data", "dataset_sha256": "data_sha256", "sample_seed": "demos_seed"}
+        return kind, {names.get(k, k): v for k, v in config.items()}
+    return kind, dict(config)
+
+
+_RENAMES: dict[int, Callable[[str, Mapping[str, Any]], tuple[str, dict[str, Any]]]] = {2: _rename_v2}
+"""Cache versions whose successor only renamed settings: version -> (kind, config) in the next version's names."""
+
+
+@dataclass
+class OlderRuns:
+    """What :func:`adopt_older_runs` did: runs adopted (their new directories) and runs kept but not reused."""
+
+    adopted: list[Path] = field(default_factory=list)
+    not_reused: list[tuple[Path, str]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"adopted": [p.name for p in self.adopted],
+                "not_reused": [{"dir": p.name, "reason": why} for p, why in self.not_reused]}
+
+
+def _migrate(record: Mapping[str, Any]) -> Task:
+    """The current task an older run's record stands for; TaskError saying why when there is none."""
+    version = record.get("cache_version", 1)
+    kind, config = record.get("kind"), record.get("config")
+    if not isinstance(kind, str) or not isinstance(config, Mapping):
+        raise TaskError("its result.json records no kind or config")
+    while version < CACHE_VERSION:
+        step = _RENAMES.get(version)
+        if step is None:
+            raise TaskError(f"made by cache version {version}, whose numbers may differ from this pbicrl's "
+                            f"(version {CACHE_VERSION})")
+        try:
+            kind, config = step(kind, config)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise TaskError(f"its version-{version} config cannot be renamed ({type(exc).__name__}: {exc})") from None
+        version += 1
+    import warnings
+
+    from pbicrl.errors import PbicrlWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PbicrlWarning)
+        task = Task(kind, config, name=record.get("name"))
+    for key, value in config.items():  # e.g. data_sha256: the dataset must still be the one it was made from
+        if key in task.config and canonical_json(task.config[key]) != canonical_json(value):
+            raise TaskError(f"its setting {key} is {canonical_json(value)} but would now be "
+                            f"{canonical_json(task.config[key])} (a changed or moved dataset?)")
+    return task
+
+
+def adopt_older_runs(root: str | os.PathLike[str], *, dry_run: bool = False) -> OlderRuns:
+    """Take over the finished runs under ``root`` that an older cache version made, where that is exact.
+
+    A run of an older :data:`CACHE_VERSION` whose later versions only renamed settings (:data:`_RENAMES`) is
+    the run of the task its renamed config describes: its directory is renamed to that task's and its
+    ``result.json`` rewritten (current version, config and hash; headline numbers computed again from its
+    files by the kind's ``summarize``; ``adopted_from`` records the old version and hash). Other older runs
+    (numbers that may differ, a dataset that changed, a kind that is gone, a current run of the same task)
+    are left where they are and listed with the reason, never reused. With ``dry_run`` nothing is changed:
+    ``adopted`` lists the directories the adoptable runs would get.
+    """
+    root = Path(root)
+    out = OlderRuns()
+    if not root.is_dir():
+        return out
+    for d in sorted(root.iterdir()):
+        if d.name.startswith(".") or not d.is_dir():
+            continue
+        record = read_result(d)
+        if record is None or record.get("cache_version", 1) >= CACHE_VERSION:
+            continue
+        try:
+            task = _migrate(record)
+            done = find_done(task, root)
+            if done is not None:
+                raise TaskError(f"{done.name} holds a current run of the same settings")
+            summarize = task.spec.summarize
+            if dry_run:
+                out.adopted.append(task.out_dir(root))
+                continue
+            result = summarize(dict(task.config), d) if summarize is not None else record.get("result")
+        except Exception as exc:  # TaskError or unreadable files: keep it, say why
+            out.not_reused.append((d, str(exc) if isinstance(exc, TaskError) else _error_text(exc)))
+            continue
+        target = task.out_dir(root)
+        if target != d:
+            try:
+                os.rename(d, target)  # first the name, then the record: a crash between is finished next time
+            except OSError as exc:
+                out.not_reused.append((d, f"cannot be renamed to {target.name} ({exc.strerror or exc})"))
+                continue
+        write_json(target / RESULT_FILE, _record(task, result, float(record.get("runtime_s") or 0.0),
+                                                 finished_at=record.get("finished_at"), host=record.get("host"),
+                                                 adopted_from={"cache_version": record.get("cache_version", 1),
+                                                               "kind": record.get("kind"),
+                                                               "config_hash": record.get("config_hash")}))
+        out.adopted.append(target)
+    return out
 
 
 # --------------------------------------------------------------------------------------------- kind "selftest"

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from pbicrl._kernels import loglik
+from pbicrl._kernels import KIND_PAIRWISE, loglik, pairs_loglik_bound
 from pbicrl.samplers._parametric import param_column
 from pbicrl.samplers._priorkern import _logprior_w, _lognormal
 
@@ -41,26 +41,81 @@ def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: n
     return total
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _bound(power: float, a_new: np.ndarray, pi_: np.ndarray, pj: np.ndarray, pm: np.ndarray) -> float:
+    """``power`` times an upper bound on the explicit pairs' log-likelihood, rounding included (see the caller)."""
+    u, slack = pairs_loglik_bound(a_new, pi_, pj, pm)
+    return power * (u + 2.0 * slack)
+
+
+@njit(cache=True, error_model="numpy")
+def _cholesky_active(cov: np.ndarray, act: np.ndarray, m: int, L: np.ndarray) -> bool:
+    """Lower Cholesky factor of ``cov[act[:m], act[:m]]`` into ``L[:m, :m]``; False if not positive definite."""
+    for r in range(m):
+        for q in range(r + 1):
+            acc = cov[act[r], act[q]]
+            for k in range(q):
+                acc -= L[r, k] * L[q, k]
+            if r == q:
+                if not acc > 0.0:
+                    return False
+                L[r, r] = math.sqrt(acc)
+            else:
+                L[r, q] = acc / L[q, q]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _adapt_joint(jcov: np.ndarray, jst: np.ndarray, jsc: np.ndarray, sigma: np.ndarray, cand: np.ndarray) -> None:
+    """Warm-up only: the joint move's covariance from the co-active draws so far (diagonal ``sigma^2`` until there
+    are 20), its scale towards 25% acceptance."""
+    if jsc[1] >= 5.0:
+        jsc[0] *= math.exp(jsc[2] / jsc[1] - 0.25)
+    jsc[1] = 0.0
+    jsc[2] = 0.0
+    for k1 in range(cand.size):
+        j1 = cand[k1]
+        for k2 in range(cand.size):
+            j2 = cand[k2]
+            cnt = jst[0, j1, j2]
+            if cnt >= 20.0 and jst[0, j1, j1] >= 20.0 and jst[0, j2, j2] >= 20.0:
+                cov = jst[2, j1, j2] / cnt - (jst[1, j1, j2] / cnt) * (jst[1, j2, j1] / cnt)
+                jcov[j1, j2] = max(cov, 1e-300) if j1 == j2 else cov
+            elif j1 == j2:
+                jcov[j1, j1] = sigma[j1] * sigma[j1]
+            else:
+                jcov[j1, j2] = 0.0
+
+
 @njit(cache=True, error_model="numpy")
 def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
               c, w, theta, a, scal, FbT, beta, power,
-              lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi, gitems, goff, gmarg, gbuf,
+              lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff,
               fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi,
               u_j, u_mv, z, u_acc, zt,
               cand, p_flip, p_theta, f_s, log_odds, pkind, prm,
               sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt,
               out_c, out_w, out_t, out_ll, out_lp, n_out,
               map_c, map_w, map_t, map_scal, counts,
-              a_new, col_new, theta_new, memo_valid, memo_ll):
+              a_new, col_new, theta_new, memo_valid, memo_ll,
+              p_joint, zj, jcov, jst, jsc):
     """Advance one chain by ``n`` iterations (global iteration numbers ``it0 .. it0+n-1``, 0-based).
 
-    ``lkind, brows .. gbuf`` are ``PreferenceLikelihood.kernel_args()`` (the likelihood's kind, pairwise arrays
-    and scratch, grouped arrays and scratch), passed on to :func:`pbicrl._kernels.loglik`.
+    ``lkind, brows .. moff`` are ``PreferenceLikelihood.kernel_args()`` (the likelihood's kind, pairwise arrays
+    and scratch, grouped arrays and scratch, margin offsets), passed on to :func:`pbicrl._kernels.loglik`.
     ``scal`` = [log-likelihood, log-prior]; ``map_scal`` = [best log-posterior, its log-likelihood];
     ``n_out`` = [number of stored draws]. ``power`` tempers the log-likelihood (1 = the paper's model). ``naive`` recounts every state for axis halfspaces (benchmark only). Draws are stored after ``burn_in`` every ``thin`` iterations.
     ``ad`` (5, d) and ``adt`` (5, P) are warm-up accumulators (count, sum, sum of squares; proposals, accepts).
     In ``pbicrl`` mode ``memo_ll[j]`` caches the likelihood with feature ``j`` switched off (valid while no
     other component changes); in ``paper`` mode it caches the likelihood of flipping ``j``.
+
+    ``pbicrl`` and ``bpl``: with probability ``p_joint`` (``u_mv >= 1 - p_joint``) an iteration moves all active
+    weights together, :math:`w_A' = w_A + s\\,(2.38/\\sqrt{|A|})\\,L z` with ``z = zj[t, :|A|]``, :math:`L L^\\top` the
+    adapted covariance ``jcov`` restricted to the active set (diagonal ``sigma^2`` where it is not positive
+    definite) and ``s = jsc[0]``. In the second half of warm-up ``jst`` (3, d, d) accumulates co-active counts, sums
+    and products of the weights, and ``jcov`` is re-estimated from it at each adaptation point; ``s`` adapts towards
+    25% acceptance throughout warm-up (``jsc[1:3]``: proposals, accepts in the window). Afterwards the kernel is
+    fixed.
     """
     d = w.size
     N = a.size
@@ -70,9 +125,17 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
     lp = scal[1]
     latent = mode == MODE_PAPER or mode == MODE_AUTHORS  # Algorithm 1's schedule, likelihood-ratio acceptance
     use_prior = not latent
+    # Explicit pairs only: reject a proposal from a cheap upper bound on its log-likelihood when even the bound fails
+    # the acceptance test. Floating-point addition is monotone, so the exact log-ratio, computed by the same
+    # expression, would fail too: same decisions, same chain, fewer exact evaluations (counts[C_EVALS]).
+    screen = lkind == KIND_PAIRWISE and bm.size == 0 and pi_.size >= 16
+    joint = p_joint > 0.0 and (mode == MODE_PBICRL or mode == MODE_BPL)
+    act = np.empty(d, np.int64)
+    dw = np.empty(d)
+    Lc = np.empty((d, d))
     for t in range(n):
         it = it0 + t
-        move = 0  # 0 none, 1 flip, 2 weight, 3 theta
+        move = 0  # 0 none, 1 flip, 2 weight, 3 theta, 4 all active weights
         j = -1
         if latent:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
@@ -82,6 +145,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 move = 3
             else:
                 move = 2
+        elif joint and u_mv[t] >= 1.0 - p_joint:
+            move = 4
         elif mode == MODE_BPL:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
             move = 3 if (j >= d_known and u_mv[t] < p_theta) else 2
@@ -110,18 +175,25 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
             if latent:
                 # flip c_j, keep the latent weight (and parameters); likelihood ratio only
                 delta = w[j] if c[j] == 0 else -w[j]
+                lu = math.log(u_acc[t])
+                screened = False
                 if memo_valid[j]:
                     ll_new = memo_ll[j]
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + delta * FbT[j, i]
-                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
-                                            sEi, gitems, goff, gmarg, gbuf)
-                    counts[C_EVALS] += 1
-                    memo_valid[j] = True
-                    memo_ll[j] = ll_new
+                    if screen:
+                        screened = _bound(power, a_new, pi_, pj, pm) - ll < lu
+                    if screened:
+                        ll_new = -np.inf
+                    else:
+                        ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ,
+                                                sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff)
+                        counts[C_EVALS] += 1
+                        memo_valid[j] = True
+                        memo_ll[j] = ll_new
                 log_r = ll_new - ll
-                if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
+                if not screened and (log_r >= 0.0 or lu < log_r):
                     for i in range(N):
                         a[i] += delta * FbT[j, i]
                     c[j] = 1 - c[j]
@@ -153,11 +225,15 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                             col_new[i] = FbT[j, i]
                     for i in range(N):
                         a_new[i] = a[i] + w_new * col_new[i]
-                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
-                                            sEi, gitems, goff, gmarg, gbuf)
-                    counts[C_EVALS] += 1
-                    log_r = ll_new - ll + log_odds + lpw - lq
-                    if math.log(u_acc[t]) < log_r:
+                    lu = math.log(u_acc[t])
+                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + log_odds + lpw - lq < lu
+                    log_r = -np.inf
+                    if not screened:
+                        ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi,
+                                                sE, sEi, gitems, goff, gmarg, gbuf, moff)
+                        counts[C_EVALS] += 1
+                        log_r = ll_new - ll + log_odds + lpw - lq
+                    if not screened and lu < log_r:
                         memo_ll[j] = ll  # the off-state likelihood stays known
                         for i in range(N):
                             a[i] = a_new[i]
@@ -181,18 +257,25 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                     lpw += _logprior_theta(theta, poff[m], poff[m + 1], tlo, thi, True)
                     for p in range(poff[m], poff[m + 1]):
                         lq += _lognormal(theta[p], qt_mu[p], qt_s[p])
+                lu = math.log(u_acc[t])
+                screened = False
                 if memo_valid[j]:
                     ll_new = memo_ll[j]
                 else:
                     for i in range(N):
                         a_new[i] = a[i] - w[j] * FbT[j, i]
-                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
-                                            sEi, gitems, goff, gmarg, gbuf)
-                    counts[C_EVALS] += 1
-                    memo_valid[j] = True
-                    memo_ll[j] = ll_new
+                    if screen:
+                        screened = _bound(power, a_new, pi_, pj, pm) - ll - log_odds - lpw + lq < lu
+                    if screened:
+                        ll_new = -np.inf
+                    else:
+                        ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ,
+                                                sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff)
+                        counts[C_EVALS] += 1
+                        memo_valid[j] = True
+                        memo_ll[j] = ll_new
                 log_r = ll_new - ll - log_odds - lpw + lq
-                if math.log(u_acc[t]) < log_r:
+                if not screened and lu < log_r:
                     for i in range(N):
                         a[i] -= w[j] * FbT[j, i]
                     c[j] = 0
@@ -217,11 +300,15 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + step * FbT[j, i]
-                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
-                                            sEi, gitems, goff, gmarg, gbuf)
-                    counts[C_EVALS] += 1
-                    log_r = ll_new - ll + lp_newj - lp_old
-                    if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
+                    lu = math.log(u_acc[t])
+                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + lp_newj - lp_old < lu
+                    log_r = -np.inf
+                    if not screened:
+                        ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi,
+                                                sE, sEi, gitems, goff, gmarg, gbuf, moff)
+                        counts[C_EVALS] += 1
+                        log_r = ll_new - ll + lp_newj - lp_old
+                    if not screened and (log_r >= 0.0 or lu < log_r):
                         for i in range(N):
                             a[i] = a_new[i]
                         w[j] = w_new
@@ -252,11 +339,15 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 else:
                     for i in range(N):
                         a_new[i] = a[i] + w[j] * (col_new[i] - FbT[j, i])
-                    ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE,
-                                            sEi, gitems, goff, gmarg, gbuf)
-                    counts[C_EVALS] += 1
-                    log_r = ll_new - ll + lpt_new - lpt_old
-                    if log_r >= 0.0 or math.log(u_acc[t]) < log_r:
+                    lu = math.log(u_acc[t])
+                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + lpt_new - lpt_old < lu
+                    log_r = -np.inf
+                    if not screened:
+                        ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi,
+                                                sE, sEi, gitems, goff, gmarg, gbuf, moff)
+                        counts[C_EVALS] += 1
+                        log_r = ll_new - ll + lpt_new - lpt_old
+                    if not screened and (log_r >= 0.0 or lu < log_r):
                         for i in range(N):
                             a[i] = a_new[i]
                         ll = ll_new
@@ -270,8 +361,64 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
             if accepted:
                 counts[C_T_ACC] += 1
                 adt[4, p0] += 1
+        elif move == 4:
+            m = 0
+            for k in range(nc):
+                if c[cand[k]] == 1:
+                    act[m] = cand[k]
+                    m += 1
+            if m > 0:
+                counts[C_W_PROP] += 1
+                jsc[1] += 1.0
+                if not _cholesky_active(jcov, act, m, Lc):
+                    for r in range(m):  # not positive definite: the single-site scales
+                        for q in range(m):
+                            Lc[r, q] = sigma[act[r]] if r == q else 0.0
+                sc = jsc[0] * 2.38 / math.sqrt(m)
+                lp_old = 0.0
+                lp_new = 0.0
+                for r in range(m):
+                    acc_ = 0.0
+                    for q in range(r + 1):
+                        acc_ += Lc[r, q] * zj[t, q]
+                    dw[r] = sc * acc_
+                    jj = act[r]
+                    lp_old += _logprior_w(pkind[jj], prm, jj, w[jj])
+                    lp_new += _logprior_w(pkind[jj], prm, jj, w[jj] + dw[r])
+                if lp_new > -np.inf:
+                    for i in range(N):
+                        a_new[i] = a[i]
+                    for r in range(m):
+                        jj = act[r]
+                        for i in range(N):
+                            a_new[i] += dw[r] * FbT[jj, i]
+                    lu = math.log(u_acc[t])
+                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + lp_new - lp_old < lu
+                    log_r = -np.inf
+                    if not screened:
+                        ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi,
+                                                sE, sEi, gitems, goff, gmarg, gbuf, moff)
+                        counts[C_EVALS] += 1
+                        log_r = ll_new - ll + lp_new - lp_old
+                    if not screened and (log_r >= 0.0 or lu < log_r):
+                        for i in range(N):
+                            a[i] = a_new[i]
+                        for r in range(m):
+                            w[act[r]] += dw[r]
+                        ll = ll_new
+                        lp += lp_new - lp_old
+                        accepted = True
+            if accepted:
+                counts[C_W_ACC] += 1
+                jsc[2] += 1.0
         if accepted:
-            if latent:
+            if move == 4:
+                for k in range(d):
+                    memo_valid[k] = False
+            elif latent and move != 1 and c[j] == 0:
+                # a latent weight or location moved: the returns did not change, so only flipping j changes
+                memo_valid[j] = False
+            elif latent:
                 for k in range(d):
                     memo_valid[k] = False
             else:
@@ -290,6 +437,18 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
             for p in range(P):
                 map_t[p] = theta[p]
         if it < burn_in:
+            if joint and 2 * it >= burn_in:  # second half of warm-up only: past the initial transient
+                for k1 in range(nc):
+                    j1 = cand[k1]
+                    if c[j1] == 1:
+                        for k2 in range(nc):
+                            j2 = cand[k2]
+                            if c[j2] == 1:
+                                jst[0, j1, j2] += 1.0
+                                jst[1, j1, j2] += w[j1]
+                                jst[2, j1, j2] += w[j1] * w[j2]
+            if joint and adapt_every > 0 and (it + 1) % adapt_every == 0:
+                _adapt_joint(jcov, jst, jsc, sigma, cand)
             if mode == MODE_PBICRL:
                 for k in range(d):
                     if c[k] == 1:

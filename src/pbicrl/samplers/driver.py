@@ -7,10 +7,21 @@ or ``kill -KILL`` of a ``pbicrl`` process leaves no chain running. Workers ignor
 
 The compiled sampler is cached on disk by Numba; the first run of an installation compiles it (about 15 s),
 which :func:`sample` announces on stderr when it shows progress.
+
+Per-draw statistics (:class:`_DrawStats`): besides the draws, every chain records for each kept draw the move
+type of the iteration that produced it (:data:`MOVE_CODES`), whether that move was accepted, and the fraction
+of iterations accepted since the previous kept draw. The compiled loop keeps counters only, so the driver runs
+each chunk with ``thin = 1`` (the thinning only selects what is stored: the chain is the same) and reads the
+acceptances off consecutive states; the move types follow from the chunk's random numbers, drawn again from a
+copy of the generator. The kept draws, the chain and its random numbers are unchanged bit for bit. Cost: the
+stored states of one chunk (20,000 rows) and, only when warm-up ends inside a chunk exactly at an adaptation
+step, a replay of that chunk's warm-up part, once per chain (never with the default 400,000 iterations).
 """
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import multiprocessing as mp
 import os
 import signal
@@ -28,12 +39,16 @@ from pbicrl.likelihood import PreferenceLikelihood
 from pbicrl.results import Posterior
 from pbicrl.samplers.kernels import ChainState, Kernel, SamplerSettings, build_kernel
 
-__all__ = ["sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling"]
+__all__ = ["sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES"]
 
 # Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
 _CHUNK = 20_000
+_ADAPT_EVERY = 500  # Kernel.run's adaptation period (warm-up adapts at iterations it with (it + 1) % 500 == 0)
 _progress_counter: Any = None  # set in workers (inherited through fork) for the progress bar
 _COMPILE_NOTE = "pbicrl: compiling the sampler (first run only, ~15 s)..."
+
+MOVE_CODES = {0: "none", 1: "flip", 2: "weight", 3: "parameter"}
+"""Per-draw move codes (``Posterior.move``): the move the compiled loop chose at the iteration of a kept draw."""
 
 
 # ---------------------------------------------------------------------------------------------- processes
@@ -149,16 +164,21 @@ def _compile_here(kernel: Kernel) -> None:
 
 # ---------------------------------------------------------------------------------------------- chains
 def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_counter: Any = None) -> dict[str, Any]:
-    """Run one chain to completion; returns its draws, MAP, counters and runtime."""
+    """Run one chain to completion; returns its draws, MAP, counters, per-draw statistics and runtime.
+
+    Per kept draw: ``move`` (int8, :data:`MOVE_CODES`), ``accepted`` (bool) and ``acceptance_fraction`` (the
+    fraction of iterations accepted since the previous kept draw; for the first, its own iteration).
+    """
     rng = np.random.default_rng(seed)
     s = kernel.settings
     out = kernel.new_buffers(s.n_draws)
+    stats = _DrawStats(kernel, s.n_draws)
     t0 = time.perf_counter()
     state: ChainState = kernel.init(rng)
     done = 0
     while done < s.n_iterations:
         n = min(_CHUNK, s.n_iterations - done)
-        state = kernel.run(rng, state, n, out)
+        state = stats.run(rng, state, n, out)
         done += n
         if progress_counter is not None:
             with progress_counter.get_lock():
@@ -170,8 +190,152 @@ def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_count
             "map_penalty_weights": state.map_penalty_weights, "map_parameters": state.map_parameters,
             "map_log_posterior": state.map_log_posterior, "map_log_likelihood": state.map_log_likelihood,
             "counts": state.counts, "sigma": state.sigma, "q_mean": state.q_mean, "q_scale": state.q_scale,
-            "sigma_theta": state.sigma_theta,
+            "sigma_theta": state.sigma_theta, "move": stats.move[:k], "accepted": stats.accepted[:k],
+            "acceptance_fraction": stats.fraction[:k],
             "runtime_s": runtime}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _ReplayKernel(Kernel):
+    """A kernel that takes its random numbers from ``randoms`` (one chunk's, drawn before) instead of a generator."""
+
+    randoms: tuple[np.ndarray, ...] = ()
+
+    def draw_randoms(self, rng: Any, n: int) -> tuple[np.ndarray, ...]:
+        return tuple(r[:n] for r in self.randoms)
+
+
+def _move_codes(kernel: Kernel, iterations: np.ndarray, u_j: np.ndarray, u_mv: np.ndarray,
+               indicators_after: np.ndarray) -> np.ndarray:
+    """The move the compiled loop chooses at each of ``iterations`` (:data:`MOVE_CODES`), from that iteration's
+    feature and move uniforms and the indicators :math:`c` after it.
+
+    The choice depends on :math:`c` before the iteration only for a ``pbicrl`` weight or parameter step (it picks
+    among the active features, none if no feature is active); such a step leaves :math:`c` unchanged, so the
+    indicators after it are the ones it saw.
+    """
+    s = kernel.settings
+    cand = kernel._cand
+    nc = cand.size
+    dk = kernel.d_known
+    p_theta = kernel.p_theta_
+    j = cand[np.minimum((u_j * nc).astype(np.int64), nc - 1)]  # the loop's int(u * nc): truncation
+    theta_move = (j >= dk) & (u_mv < p_theta)
+    if s.method in ("paper", "authors"):
+        code = np.where((np.asarray(iterations) + 1) % int(s.f_s) != 0, 1, np.where(theta_move, 3, 2))
+    elif s.method == "bpl":
+        code = np.where(theta_move, 3, 2)
+    else:
+        flip = u_mv < s.p_flip
+        want_theta = u_mv < s.p_flip + p_theta
+        on = np.asarray(indicators_after)[:, cand] == 1
+        n_on = np.where(want_theta, (on & (cand >= dk)[None, :]).sum(axis=1), on.sum(axis=1))
+        code = np.where(flip, 1, np.where(n_on > 0, np.where(want_theta, 3, 2), 0))
+    return code.astype(np.int8)
+
+
+def _last_warmup_adapts(settings: SamplerSettings) -> bool:
+    """Whether the last warm-up iteration adapts the proposals (then storing it instead would change the chain)."""
+    return bool(settings.adapt_) and settings.burn_in_ > 0 and settings.burn_in_ % _ADAPT_EVERY == 0
+
+
+class _DrawStats:
+    r"""Runs a chain's chunks and records per-draw move codes, acceptances and acceptance fractions.
+
+    Each chunk runs under a copy of the kernel with ``thin = 1`` into a scratch buffer, so that every iteration
+    after warm-up is stored; the rows the real thinning keeps are copied into the chain's buffers (the same
+    values the kernel would have stored), and a move counts as accepted when it changed :math:`(c, w_p,
+    \vartheta)` (a rejected move changes nothing; an accepted one changes the state with probability one).
+    When warm-up ends inside a chunk, the state just before the first kept iteration is needed for its flag.
+    Running that chunk with ``burn_in`` one less stores it and leaves the chain unchanged, unless the last
+    warm-up iteration adapts the proposals (adaptation on and ``burn_in`` a multiple of the adaptation period):
+    then a replay of the chunk's warm-up iterations (same random numbers, ``burn_in`` one less) gives it.
+    """
+
+    def __init__(self, kernel: Kernel, n_draws: int) -> None:
+        self.kernel = kernel
+        s = kernel.settings
+        self.burn_in, self.thin = s.burn_in_, s.thin_
+        self.every = dataclasses.replace(kernel, settings=dataclasses.replace(s, thin=1))
+        self.adapts_last = _last_warmup_adapts(s)
+        self.move = np.zeros(n_draws, np.int8)
+        self.accepted = np.zeros(n_draws, bool)
+        self.fraction = np.zeros(n_draws)
+        self._acc_since = 0  # accepted iterations since the previous kept draw (carried across chunks)
+        self._n_since = 0
+        poff = np.asarray(kernel.constraints.param_offsets) if kernel.constraints is not None else np.zeros(1, int)
+        self._owner = np.repeat(np.arange(poff.size - 1), np.diff(poff)) + kernel.d_known  # feature of each theta
+
+    def _row(self, state: ChainState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``state`` as the compiled loop stores a draw (``pbicrl`` stores NaN for inactive constraints' theta)."""
+        theta = np.asarray(state.parameters, dtype=np.float64).copy()
+        if self.kernel.settings.method == "pbicrl" and theta.size:
+            theta[np.asarray(state.indicators)[self._owner] == 0] = np.nan
+        return (np.asarray(state.indicators)[None], np.asarray(state.penalty_weights)[None], theta[None])
+
+    def _state_before(self, state: ChainState, randoms: tuple[np.ndarray, ...], m: int) -> tuple[np.ndarray, ...]:
+        """The stored row of iteration ``burn_in - 1``, reached ``m`` iterations into the chunk that starts at
+        ``state``: replayed with ``burn_in - 1`` (identical up to and including that iteration's move)."""
+        s = self.kernel.settings
+        k = self.kernel
+        shadow = _ReplayKernel(k.likelihood, dataclasses.replace(s, burn_in=self.burn_in - 1, thin=1), k.constraints,
+                               randoms=randoms)
+        buf = shadow.new_buffers(1)
+        shadow.run(None, state, m, buf)  # type: ignore[arg-type]  # the replay kernel ignores the generator
+        return buf[0][:1], buf[1][:1], buf[2][:1]
+
+    def run(self, rng: np.random.Generator, state: ChainState, n: int, out: tuple[np.ndarray, ...]) -> ChainState:
+        """``kernel.run(rng, state, n, out)`` with the same result, recording the per-draw statistics."""
+        it0, b = int(state.iteration), self.burn_in
+        first = max(it0, b)
+        if it0 + n <= b:  # all warm-up: nothing is kept
+            return self.kernel.run(rng, state, n, out)
+        replay = copy.deepcopy(rng)  # Kernel.run draws the chunk's random numbers first, from rng alone
+        m = first - it0
+        n_kept = it0 + n - first
+        one_more = int(m > 0 and not self.adapts_last)  # also store iteration burn_in - 1: the state before
+        runner = self.every
+        if one_more:
+            runner = dataclasses.replace(self.every, settings=dataclasses.replace(self.every.settings,
+                                                                                  burn_in=self.burn_in - 1))
+        buf = runner.new_buffers(n_kept + one_more)
+        new = runner.run(rng, state, n, buf)
+        if int(buf[5][0]) != n_kept + one_more:  # pragma: no cover - every iteration after warm-up is stored
+            raise RuntimeError(f"sampling: expected {n_kept + one_more} stored iterations, got {int(buf[5][0])}")
+        randoms = self.kernel.draw_randoms(replay, n)
+        if one_more:
+            prev = tuple(x[:1] for x in buf[:3])
+            buf = tuple(x[1:] for x in buf[:5]) + (buf[5],)
+        else:
+            prev = self._row(state) if m == 0 else self._state_before(state, randoms, m)
+        c, w, t = buf[0], buf[1], buf[2]
+        cc, ww, tt = (np.concatenate([p, x]) for p, x in zip(prev, (c, w, t)))
+        changed = (np.any(cc[1:] != cc[:-1], axis=1) | np.any(ww[1:] != ww[:-1], axis=1)
+                   | np.any((tt[1:] != tt[:-1]) & ~(np.isnan(tt[1:]) & np.isnan(tt[:-1])), axis=1))
+        its = np.arange(first, it0 + n)
+        keep = np.flatnonzero((its - b) % self.thin == 0)
+        r0 = int(out[5][0])
+        k = min(keep.size, out[3].size - r0)
+        keep = keep[:k]
+        for dst, src in zip(out[:5], buf[:5]):
+            dst[r0:r0 + k] = src[keep]
+        out[5][0] = r0 + k
+        self.move[r0:r0 + k] = _move_codes(self.kernel, its[keep], randoms[0][m + keep], randoms[1][m + keep], c[keep])
+        self.accepted[r0:r0 + k] = changed[keep]
+        cum = np.concatenate([[0], np.cumsum(changed)])
+        ends = keep + 1
+        starts = np.concatenate([[0], ends[:-1]])
+        acc = cum[ends] - cum[starts]
+        cnt = ends - starts
+        if k:
+            acc[0] += self._acc_since
+            cnt[0] += self._n_since
+            self.fraction[r0:r0 + k] = acc / cnt
+            self._acc_since, self._n_since = 0, 0
+        tail = ends[-1] if k else 0
+        self._acc_since += int(cum[-1] - cum[tail])
+        self._n_since += int(n_kept - tail)
+        return new
 
 
 def _worker(args: tuple[Kernel, np.random.SeedSequence]) -> dict[str, Any]:

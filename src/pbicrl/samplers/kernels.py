@@ -16,6 +16,9 @@ Three methods share one compiled loop (:mod:`pbicrl.samplers._mcmc`):
     * **weight step** (otherwise): a Gaussian random walk on one active weight chosen uniformly among the
       active ones (the identity if none is active), accepted with the usual ratio including the prior.
 
+    * **joint weight step** (probability ``p_joint``, default 0): all active weights at once, a Gaussian step with
+      a covariance adapted during warm-up (for many correlated weights and large data).
+
     During warm-up (``burn_in``) the random-walk scales adapt towards 30% acceptance and each :math:`q_j`
     is fitted to the active draws of :math:`w_j` (mean, twice the standard deviation), so switching a
     constraint on proposes weights where its posterior lies. Adaptation stops at the end of warm-up; the
@@ -109,6 +112,11 @@ class SamplerSettings:
         this schedule does.
     naive_counts : bool
         Recount every state on a parameter proposal even where a binary search suffices (for benchmarks).
+    p_joint : float
+        ``pbicrl`` and ``bpl``: probability per iteration of moving all active weights together, a Gaussian step
+        whose covariance is adapted to the chain during warm-up (adaptive Metropolis within the reversible jump;
+        fixed afterwards, so the kept draws come from a valid kernel). It pays when weights are correlated and
+        many (large data); taken from the single-weight steps' share. Default 0: the single-site moves only.
     """
 
     method: Literal["pbicrl", "paper", "authors", "bpl"] = "pbicrl"
@@ -127,6 +135,7 @@ class SamplerSettings:
     sigma_theta: float = 0.5
     p_theta: float | None = None
     naive_counts: bool = False
+    p_joint: float = 0.0
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -160,6 +169,14 @@ class SamplerSettings:
             raise ValueError(f"p_theta: must lie in [0, 1), got {self.p_theta}")
         if self.method == "pbicrl" and self.p_theta is not None and self.p_flip + self.p_theta >= 1.0:
             raise ValueError(f"p_flip + p_theta must be < 1 (weight steps need the rest), got {self.p_flip} + {self.p_theta}")
+        if not (0.0 <= float(self.p_joint) < 1.0):
+            raise ValueError(f"p_joint: must lie in [0, 1), got {self.p_joint}")
+        if self.p_joint and self.method in ("paper", "authors"):
+            raise ValueError("p_joint: joint weight moves apply to the pbicrl and bpl samplers only")
+        rest = (self.p_flip if self.method == "pbicrl" else 0.0) + (self.p_theta or 0.0)
+        if self.p_joint and rest + self.p_joint >= 1.0:
+            raise ValueError(f"p_joint: the move probabilities must leave room for single-weight steps, got "
+                             f"p_joint {self.p_joint} with {rest} for flips and parameter steps")
 
     @property
     def burn_in_(self) -> int:
@@ -188,7 +205,7 @@ class SamplerSettings:
                 "init_range": list(self.init_range) if self.method == "authors" else None, "weight_prior": self.weight_prior.to_dict(),
                 "indicator_prior": {"pi": self.indicator_prior.pi},
                 "candidates": None if self.candidates is None else list(self.candidates),
-                "sigma_theta": self.sigma_theta, "p_theta": self.p_theta}
+                "sigma_theta": self.sigma_theta, "p_theta": self.p_theta, "p_joint": float(self.p_joint)}
 
 
 class ChainState(NamedTuple):
@@ -217,7 +234,11 @@ class ChainState(NamedTuple):
         Best state visited (highest log-posterior).
     map_log_posterior, map_log_likelihood : float
     counts : ndarray (7,) int64
-        Flip proposals/accepts, weight proposals/accepts, likelihood evaluations, parameter proposals/accepts.
+        Flip proposals/accepts, weight proposals/accepts (joint moves included), likelihood evaluations,
+        parameter proposals/accepts.
+    joint_cov : ndarray (d, d); joint_stats : ndarray (3, d, d); joint_scale : ndarray (3,)
+        The joint weight move (``SamplerSettings.p_joint``): adapted covariance, warm-up accumulators, and
+        [scale, proposals, accepts in the current adaptation window].
     """
 
     indicators: NDArray[np.int8]
@@ -242,6 +263,17 @@ class ChainState(NamedTuple):
     map_log_posterior: float
     map_log_likelihood: float
     counts: NDArray[np.int64]
+    joint_cov: NDArray[np.float64]
+    joint_stats: NDArray[np.float64]
+    joint_scale: NDArray[np.float64]
+
+    def __repr__(self) -> str:
+        # shapes and scalars only: scaled_returns and features_T hold one entry per trajectory
+        on = np.flatnonzero(np.asarray(self.indicators)).tolist()
+        return (f"ChainState(iteration={self.iteration}, d={np.size(self.indicators)}, active={on}, "
+                f"params={np.size(self.parameters)}, N={np.size(self.scaled_returns)}, "
+                f"log_likelihood={self.log_likelihood:.6g}, log_prior={self.log_prior:.6g}, "
+                f"map_log_posterior={self.map_log_posterior:.6g})")
 
 
 class StepInfo(NamedTuple):
@@ -437,7 +469,8 @@ class Kernel:
             q_scale = np.maximum(10.0 * sigma, q_sd)
         return ChainState(c, w, theta.copy(), a, FbT, ll, lp, 0, sigma, q_mean, q_scale, sig_t.copy(),
                           qt_mu.copy(), qt_s.copy(), np.zeros((5, d)), np.zeros((5, P)), c.copy(), w.copy(),
-                          theta.copy(), ll + lp, ll, np.zeros(_mcmc.N_COUNTS, dtype=np.int64))
+                          theta.copy(), ll + lp, ll, np.zeros(_mcmc.N_COUNTS, dtype=np.int64),
+                          np.diag(sigma * sigma), np.zeros((3, d, d)), np.array([1.0, 0.0, 0.0]))
 
     def _bpl_initial_weights(self, rng: np.random.Generator) -> NDArray[np.float64]:
         """:math:`\\mathcal{N}(0, (\\text{init\\_scale}\\,u_j)^2)` restricted to the prior's support, candidates only.
@@ -465,9 +498,12 @@ class Kernel:
         return max(1, int(np.max(np.diff(self.constraints.param_offsets))))
 
     def draw_randoms(self, rng: np.random.Generator, n: int) -> tuple[NDArray, ...]:
-        """Per-iteration random numbers: feature choice, move choice, normal, acceptance uniform, parameter normals."""
+        """Per-iteration random numbers: feature choice, move choice, normal, acceptance uniform, parameter normals,
+        and with ``p_joint`` > 0 the joint moves' normals (drawn last: without them the stream is unchanged)."""
         out = (rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n))
         zt = rng.standard_normal((n, self._pmax())) if self.constraints is not None else np.zeros((n, 1))
+        if self.settings.p_joint > 0.0:
+            return out + (zt, rng.standard_normal((n, self.n_features)))
         return out + (zt,)
 
     def new_buffers(self, n_draws: int) -> tuple[NDArray, ...]:
@@ -483,7 +519,8 @@ class Kernel:
         d = self.n_features
         st = _copy_state(state)
         out = self.new_buffers(0) if out is None else out
-        u_j, u_mv, z, u_acc, zt = self.draw_randoms(rng, n)
+        u_j, u_mv, z, u_acc, zt, *rest = self.draw_randoms(rng, n)
+        zj = rest[0] if rest else np.zeros((1, 1))
         pkind, prm = self._prior_arrays()
         A = self._param_arrays()
         scal = np.array([st.log_likelihood, st.log_prior])
@@ -500,7 +537,8 @@ class Kernel:
             pkind, prm, st.sigma, st.q_mean, st.q_scale, st.sigma_theta, st.q_theta_mean, st.q_theta_scale,
             st.adapt_stats, st.adapt_theta_stats, *out,
             st.map_indicators, st.map_penalty_weights, st.map_parameters, map_scal, st.counts,
-            np.empty(N), np.empty(N), np.empty(self.n_params), np.zeros(d, dtype=np.bool_), np.zeros(d))
+            np.empty(N), np.empty(N), np.empty(self.n_params), np.zeros(d, dtype=np.bool_), np.zeros(d),
+            float(s.p_joint), zj, st.joint_cov, st.joint_stats, st.joint_scale)
         return st._replace(log_likelihood=float(scal[0]), log_prior=float(scal[1]), iteration=st.iteration + n,
                            map_log_posterior=float(map_scal[0]), map_log_likelihood=float(map_scal[1]))
 
@@ -538,5 +576,10 @@ def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | N
     if constraints is not None and constraints.dataset.n_trajectories != likelihood.mean_features.shape[0]:
         raise ValueError("constraints: built on a dataset with a different number of trajectories than the likelihood")
     kernel._cand  # validate candidates now  # noqa: B018
+    s = kernel.settings
+    rest = (s.p_flip if s.method == "pbicrl" else 0.0) + kernel.p_theta_
+    if s.p_joint and rest + s.p_joint >= 1.0:
+        raise ValueError(f"p_joint: the move probabilities must leave room for single-weight steps, got p_joint "
+                         f"{s.p_joint} with {rest} for flips and parameter steps")
     kernel.resolved_prior  # and the prior against the data (e.g. a support without prior mass)  # noqa: B018
     return kernel

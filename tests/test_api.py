@@ -1,0 +1,220 @@
+"""The Python API a new user meets first: a saved run loads back into the same :class:`~pbicrl.Posterior`,
+objects print short readable reprs, tables come as DataFrames and HTML, errors speak Python (not CLI flags)."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pbicrl
+from pbicrl.errors import PbicrlWarning
+from pbicrl.results import OutputExistsError, Posterior
+from pbicrl.synthetic import make_problem, make_wall_problem
+
+
+def _infer(ds, **kw):
+    kw = {"iterations": 2000, "chains": 2, "jobs": 1, "seed": 3, "progress": False} | kw
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PbicrlWarning)  # short chains warn about R-hat / ESS by design
+        return pbicrl.infer(ds, **kw)
+
+
+@pytest.fixture(scope="module")
+def fresh():
+    prob = make_problem(15, labels="violations", violation_rate=0.4, seed=3)
+    return prob.dataset, _infer(prob.dataset, margins=[0.5, 1.0])
+
+
+# ---------------------------------------------------------------------------------------------- load
+def _same_posterior(a: Posterior, b: Posterior) -> None:
+    for key in ("indicators", "penalty_weights", "log_likelihood", "log_prior", "parameters", "map_indicators",
+                "map_penalty_weights", "move", "accepted", "acceptance_fraction", "counts"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+    assert a.feature_names == b.feature_names and a.parameter_names == b.parameter_names
+    assert a.table() == b.table()
+    assert json.dumps(a.summary(), sort_keys=True) == json.dumps(b.summary(), sort_keys=True)
+    assert a.warnings() == b.warnings()
+    for est in ("selected", "map", "mean"):
+        for x, y in zip(a.point_estimate(est), b.point_estimate(est)):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_a_saved_run_loads_back_into_the_same_posterior(fresh, tmp_path):
+    _, post = fresh
+    run = post.save(tmp_path / "run")
+    back = pbicrl.load_run(run)
+    assert type(back) is Posterior and back.path == run
+    _same_posterior(post, back)
+    assert back.move is not None and back.move.shape == back.log_likelihood.shape
+    # and again: saving the loaded posterior writes the same files' content
+    again = Posterior.load(back.save(tmp_path / "again"), issue_warnings=False)
+    _same_posterior(post, again)
+
+
+def test_a_loaded_run_issues_the_warnings_of_a_fresh_one(fresh, tmp_path):
+    _, post = fresh
+    run = post.save(tmp_path / "run")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", PbicrlWarning)
+        back = pbicrl.load_run(run)
+    assert [str(w.message) for w in caught if w.category is PbicrlWarning] == post.warnings()
+    assert all(w.filename == __file__ for w in caught if w.category is PbicrlWarning)  # attributed to the caller
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PbicrlWarning)
+        pbicrl.load_run(run, issue_warnings=False)
+    assert back.warnings() == post.warnings()
+
+
+def test_a_loaded_run_exports_to_arviz(fresh, tmp_path):
+    pytest.importorskip("arviz")
+    ds, post = fresh
+    data = pbicrl.load_run(post.save(tmp_path / "run"), issue_warnings=False).to_arviz(dataset=ds,
+                                                                                        pointwise_draws=20)
+    stats = data["sample_stats"]
+    np.testing.assert_array_equal(stats["move"].values, post.move)
+    ll = data["log_likelihood"]["preferences"]
+    np.testing.assert_allclose(ll.sum("trajectory").values, post.log_likelihood[:, ll["draw"].values], rtol=1e-9)
+
+
+def test_parametric_runs_round_trip(tmp_path):
+    prob = make_wall_problem(6, seed=0)
+    post = _infer(prob.dataset, iterations=1500,
+                  constraints=[{"family": "axis_halfspace", "dims": [0], "name": "wall"}])
+    back = pbicrl.load_run(post.save(tmp_path / "run"), issue_warnings=False)
+    _same_posterior(post, back)
+    np.testing.assert_array_equal(back.map_parameters, post.map_parameters)
+    assert back.parameter_owner == post.parameter_owner
+
+
+def test_runs_saved_without_counts_or_per_draw_records_still_load(fresh, tmp_path):
+    """Runs written before chains.npz held counts and per-draw records: rates come from summary.json."""
+    _, post = fresh
+    run = post.save(tmp_path / "run")
+    with np.load(run / "chains.npz") as z:
+        arrays = {k: z[k] for k in z.files if k not in ("counts", "move", "accepted", "acceptance_fraction")}
+    np.savez_compressed(run / "chains.npz", **arrays)
+    back = pbicrl.load_run(run, issue_warnings=False)
+    assert back.move is None and back.accepted is None
+    assert back.acceptance_rate() == pytest.approx(post.acceptance_rate())
+    assert back.summary()["likelihood_evaluations"] == post.summary()["likelihood_evaluations"]
+    assert back.table() == post.table()
+
+
+def test_missing_and_malformed_runs_are_named(tmp_path):
+    from pbicrl.runs import RunError
+
+    with pytest.raises(FileNotFoundError, match="no such directory"):
+        pbicrl.load_run(tmp_path / "nope")
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "summary.json").write_text("[]")
+    (tmp_path / "r" / "chains.npz").write_bytes(b"")
+    with pytest.raises(RunError, match="chains.npz|summary.json"):
+        pbicrl.load_run(tmp_path / "r")
+
+
+# ---------------------------------------------------------------------------------------------- wording
+def test_saving_twice_says_overwrite_true_and_the_cli_says_its_flag(fresh, tmp_path, capsys):
+    ds, post = fresh
+    run = post.save(tmp_path / "run")
+    with pytest.raises(OutputExistsError) as exc:
+        post.save(run)
+    msg = str(exc.value)
+    assert "overwrite=True" in msg and "--overwrite" not in msg and isinstance(exc.value, FileExistsError)
+    assert post.save(run, overwrite=True) == run
+    from pbicrl.cli import main
+
+    data = ds.save(tmp_path / "d.npz")
+    assert main(["infer", str(data), "--out", str(run), "--iterations", "50", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "pass --overwrite" in err and "overwrite=True" not in err
+
+
+def test_netcdf_export_onto_an_existing_file_speaks_python(fresh, tmp_path):
+    pytest.importorskip("arviz")
+    pytest.importorskip("h5netcdf")
+    _, post = fresh
+    target = tmp_path / "p.nc"
+    target.write_text("x")
+    from pbicrl.export import to_netcdf
+
+    with pytest.raises(OutputExistsError, match="overwrite=True") as exc:
+        to_netcdf(post, target, pointwise=False)
+    assert "--" not in str(exc.value)
+    assert target.read_text() == "x"
+
+
+# ---------------------------------------------------------------------------------------------- display
+def test_reprs_are_short_and_never_dump_arrays(fresh, tmp_path):
+    ds, post = fresh
+    from pbicrl.preferences import Preferences
+    from pbicrl.samplers import build_kernel
+
+    big = pbicrl.load_dataset("point_mass")
+    prefs = Preferences.from_groups(big.group)
+    state = build_kernel(pbicrl.PreferenceLikelihood.from_dataset(big)).init(0)
+    loaded = pbicrl.load_run(post.save(tmp_path / "run"), issue_warnings=False)
+    for obj in (post, loaded, prefs, state, big, loaded.attach()):
+        r = repr(obj)
+        assert len(r) < 400 and "array(" not in r and "\n" not in r, r
+    assert repr(prefs) == "Preferences(N=1200, groups=3, pairs=474,597, blocks=3, protocol='all')"
+    assert f"chains={post.n_chains}" in repr(post) and f"draws={post.n_draws}" in repr(post)
+    assert "path=" in repr(loaded) and "path=" not in repr(post)
+    assert repr(state).startswith("ChainState(iteration=0, d=4,") and "N=1200" in repr(state)
+    from pbicrl.runs import load_run as load_record
+
+    assert len(repr(load_record(tmp_path / "run"))) < 300
+
+
+def test_to_dataframe_holds_the_tables_numbers(fresh):
+    pd = pytest.importorskip("pandas")
+    _, post = fresh
+    df = post.to_dataframe()
+    assert isinstance(df, pd.DataFrame) and list(df.index) == list(post.feature_names)
+    np.testing.assert_allclose(df["p_constraint"].to_numpy(), post.p_constraint)
+    np.testing.assert_allclose(df["median"].to_numpy(), post.conditional_median(), equal_nan=True)
+    assert list(df.index[df["selected"].astype(bool)]) == post.selected()
+    assert {"rhat", "ess_bulk", "ci90_low", "ci90_high", "prior_driven", "min_penalty"} <= set(df.columns)
+
+
+def test_to_dataframe_without_pandas_names_the_install(fresh, monkeypatch):
+    import builtins
+
+    _, post = fresh
+    real = builtins.__import__
+
+    def no_pandas(name, *args, **kwargs):
+        if name == "pandas" or name.startswith("pandas."):
+            raise ImportError("No module named 'pandas'")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_pandas)
+    with pytest.raises(ImportError, match="pip install pandas"):
+        post.to_dataframe()
+
+
+def test_html_repr_is_the_table_escaped(fresh):
+    _, post = fresh
+    page = post._repr_html_()
+    assert page.count("<tr>") == 1 + post.n_features and "<table>" in page
+    for n in post.feature_names:
+        assert f"<td>{n}</td>" in page
+    hostile = Posterior(**{**{f: getattr(post, f) for f in post.__dataclass_fields__},
+                           "feature_names": ("<script>alert(1)</script>",) + post.feature_names[1:],
+                           "identified": None, "issue_warnings": False})
+    page = hostile._repr_html_()
+    assert "<script>" not in page and "&lt;script&gt;" in page
+
+
+def test_py_typed_ships_with_the_package():
+    import tomllib
+
+    root = Path(pbicrl.__file__).resolve().parent
+    assert (root / "py.typed").is_file()
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    if pyproject.is_file():  # a source checkout: the marker must be package data
+        data = tomllib.loads(pyproject.read_text())["tool"]["setuptools"]["package-data"]["pbicrl"]
+        assert "py.typed" in data
