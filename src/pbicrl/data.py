@@ -43,11 +43,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import shutil
-import socket
 import stat
 import tempfile
-import time
 import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -56,6 +53,9 @@ from typing import IO, Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+# one implementation of temporary names, their clean-up and the umask, shared with every atomic writer
+from pbicrl._atomic import clean_stale_temporaries, temporary_prefix, umask
 
 __all__ = [
     "Dataset", "DatasetError", "DatasetNotFoundError", "load_dataset", "resolve_dataset_path",
@@ -357,100 +357,6 @@ def _read_npz(path: Path, fields: Sequence[str], *, what: str) -> tuple[dict[str
 
 
 # ---------------------------------------------------------------------------------------------- temporaries
-def _host() -> str:
-    """This machine's name as it appears in temporary names (letters, digits, ``-`` and ``_``)."""
-    name = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in socket.gethostname())
-    return name[:40] or "host"
-
-
-def _pid_alive(pid: int) -> bool:
-    """Whether process ``pid`` of this host is running (a zombie counts as dead)."""
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    except OSError:
-        return True
-    try:  # a killed process stays a zombie until its new parent reaps it
-        text = Path(f"/proc/{pid}/stat").read_text()
-        return text[text.rindex(")") + 2] not in "ZX"
-    except (OSError, ValueError, IndexError):
-        return True
-
-
-def temporary_prefix(target: str | os.PathLike[str], kind: str = "tmp") -> str:
-    """Name prefix of a temporary for ``target``: ``.<name>.<kind>-<host>.<pid>.``.
-
-    Writers that create their temporaries with it (``tempfile.mkdtemp(prefix=..., dir=target.parent)``) let
-    :func:`clean_stale_temporaries` remove those of killed processes. ``kind`` is ``"tmp"`` (the new content,
-    before its rename) or ``"old"`` (the previous content, moved aside while the new one takes its place).
-    """
-    if kind not in ("tmp", "old"):
-        raise ValueError(f"kind: expected 'tmp' or 'old', got {kind!r}")
-    return f".{Path(target).name}.{kind}-{_host()}.{os.getpid()}."
-
-
-def clean_stale_temporaries(target: str | os.PathLike[str], *, legacy_age_s: float = 3600.0) -> list[Path]:
-    """Remove the temporaries that killed writers left beside ``target``; returns what was removed.
-
-    An atomic writer of ``target`` (a run directory, a dataset file) works in ``.<name>.tmp-*`` and, when
-    replacing, moves the previous content into ``.<name>.old-*`` before renaming the new one into place. A
-    writer killed at the wrong moment leaves them behind. Temporaries named by :func:`temporary_prefix`
-    are stale when their process (on this host) is gone; older names without a process id are stale
-    after ``legacy_age_s`` seconds. Temporaries of running writers and of other hosts are kept.
-
-    If ``target`` is missing but a stale ``.old-*`` still holds the previous content (the writer died
-    between its two renames), that content is put back: a killed write never loses the earlier results.
-    """
-    target = Path(target)
-    parent = target.parent if str(target.parent) else Path(".")
-    prefix = f".{target.name}."
-    try:
-        names = sorted(e.name for e in os.scandir(parent) if e.name.startswith(prefix))
-    except OSError:
-        return []
-    host, now = _host(), time.time()
-    stale: list[tuple[str, Path]] = []
-    for name in names:
-        kind, sep, rest = name[len(prefix):].partition("-")
-        if not sep or kind not in ("tmp", "old"):
-            continue
-        path = parent / name
-        parts = rest.split(".")
-        if len(parts) >= 3 and parts[1].isdigit():  # .<name>.<kind>-<host>.<pid>.<random>
-            if parts[0] != host or _pid_alive(int(parts[1])):
-                continue
-        else:  # written before temporaries carried their process id: only age tells
-            try:
-                if now - path.lstat().st_mtime < legacy_age_s:
-                    continue
-            except OSError:
-                continue
-        stale.append((kind, path))
-    removed: list[Path] = []
-    for kind, path in sorted(stale, key=lambda kp: kp[0] != "old"):  # restore before deleting anything
-        if kind == "old" and not (target.exists() or target.is_symlink()):
-            inner = path / "old" if path.is_dir() and (path / "old").exists() else None
-            if inner is not None:
-                try:
-                    os.replace(inner, target)
-                except OSError:
-                    continue  # could not restore: keep the copy rather than delete it
-        try:
-            if path.is_dir() and not path.is_symlink():
-                shutil.rmtree(path)
-            else:
-                path.unlink()
-        except FileNotFoundError:
-            pass
-        except OSError:
-            continue
-        removed.append(path)
-    return removed
 
 
 # ---------------------------------------------------------------------------------------------- validation
@@ -1125,10 +1031,7 @@ def _rename_no_clobber(src: str | os.PathLike[str], dst: Path) -> None:
         os.replace(src, dst)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+_umask = umask  # the name io/csv.py imports
 
 
 def load_dataset(name_or_path: str | os.PathLike[str], *, allow_unlabelled: bool = False) -> Dataset:
