@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from pbicrl.synthetic import make_problem
+from pbicrl.inference.synthetic import make_problem
 
 
 @pytest.fixture(scope="session")

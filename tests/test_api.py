@@ -12,8 +12,8 @@ import pytest
 
 import pbicrl
 from pbicrl.errors import PbicrlWarning
-from pbicrl.results import OutputExistsError, Posterior
-from pbicrl.synthetic import make_problem, make_wall_problem
+from pbicrl.inference.results import OutputExistsError, Posterior
+from pbicrl.inference.synthetic import make_problem, make_wall_problem
 
 
 def _infer(ds, **kw):
@@ -139,7 +139,7 @@ def test_netcdf_export_onto_an_existing_file_speaks_python(fresh, tmp_path):
     _, post = fresh
     target = tmp_path / "p.nc"
     target.write_text("x")
-    from pbicrl.export import to_netcdf
+    from pbicrl.analysis.export import to_netcdf
 
     with pytest.raises(OutputExistsError, match="overwrite=True") as exc:
         to_netcdf(post, target, pointwise=False)
@@ -150,8 +150,8 @@ def test_netcdf_export_onto_an_existing_file_speaks_python(fresh, tmp_path):
 # ---------------------------------------------------------------------------------------------- display
 def test_reprs_are_short_and_never_dump_arrays(fresh, tmp_path):
     ds, post = fresh
-    from pbicrl.preferences import Preferences
-    from pbicrl.samplers import build_kernel
+    from pbicrl.inference.preferences import Preferences
+    from pbicrl.inference.samplers import build_kernel
 
     big = pbicrl.load_dataset("point_mass")
     prefs = Preferences.from_groups(big.group)

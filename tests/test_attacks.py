@@ -26,9 +26,9 @@ import pytest
 
 import pbicrl
 from pbicrl.cli import main
-from pbicrl.data import (MAX_GROUPS, Dataset, DatasetError, DatasetNotFoundError, clean_stale_temporaries,
+from pbicrl.inference.data import (MAX_GROUPS, Dataset, DatasetError, DatasetNotFoundError, clean_stale_temporaries,
                          inspect_npz, list_shipped_datasets, load_dataset, resolve_dataset_path, temporary_prefix)
-from pbicrl.synthetic import make_problem
+from pbicrl.inference.synthetic import make_problem
 
 LINUX = sys.platform.startswith("linux")
 PY = sys.executable
@@ -429,9 +429,9 @@ def test_minari_import_finds_local_modules_keeps_actions_and_never_says_download
 # ---------------------------------------------------------------------------------------------- 5. processes
 _SAMPLE_FOREVER = textwrap.dedent("""
     import sys
-    from pbicrl.likelihood import PreferenceLikelihood
-    from pbicrl.samplers import sample
-    from pbicrl.synthetic import make_problem
+    from pbicrl.inference.likelihood import PreferenceLikelihood
+    from pbicrl.inference.samplers import sample
+    from pbicrl.inference.synthetic import make_problem
     lik = PreferenceLikelihood.from_dataset(make_problem(6, seed=0).dataset)
     sample(lik, n_chains=2, n_jobs=2, n_iterations=10**9, progress=False)
 """)
@@ -510,7 +510,7 @@ def test_sweep_workers_die_with_their_parent(tmp_path, sig):
 _KILLED_WRITER = textwrap.dedent("""
     import os, signal, sys, tempfile
     from pathlib import Path
-    from pbicrl.data import temporary_prefix
+    from pbicrl.inference.data import temporary_prefix
     out = Path(sys.argv[1])
     new = Path(tempfile.mkdtemp(prefix=temporary_prefix(out, "tmp"), dir=out.parent))
     (new / "summary.json").write_text("new")
@@ -538,7 +538,7 @@ def test_temporaries_of_killed_writers_are_cleaned_and_nothing_is_lost(tmp_path)
 _KILLED_RUN_DIR = textwrap.dedent("""
     import os, signal, sys
     import numpy as np
-    from pbicrl import results
+    from pbicrl.inference import results
     real = np.savez_compressed
     def die(*a, **k):
         real(*a, **k)
@@ -560,8 +560,7 @@ def test_a_run_dir_writer_killed_mid_write_leaves_only_cleanable_temporaries(tmp
     clean_stale_temporaries(out, legacy_age_s=0)  # names without a pid: only age tells (results.py, see report)
     # left: only the killed writer's claim file, which locks nothing once its process is gone
     assert [p.name for p in tmp_path.glob(".run.*")] == [".run.lock"] and (out / "summary.json").exists()
-    from pbicrl import results
-
+    from pbicrl.inference import results
     results.write_run_dir(out, {"summary.json": {"later": 1}}, {}, overwrite=True)  # a later run takes it over
     assert not list(tmp_path.glob(".run.*")) and json.loads((out / "summary.json").read_text()) == {"later": 1}
 
@@ -569,11 +568,11 @@ def test_a_run_dir_writer_killed_mid_write_leaves_only_cleanable_temporaries(tmp
 # ---------------------------------------------------------------------------------------------- 6. compiling
 def test_a_cold_numba_cache_is_detected_and_announced(tmp_path, capsys, monkeypatch):
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    code = "from pbicrl.samplers.driver import sampler_needs_compiling as f; print(f())"
+    code = "from pbicrl.inference.samplers.driver import sampler_needs_compiling as f; print(f())"
     cold = subprocess.run([PY, "-c", code], capture_output=True, text=True, timeout=120, env=env)
     assert cold.stdout.strip() == "True", cold.stderr
-    from pbicrl.likelihood import PreferenceLikelihood
-    from pbicrl.samplers import driver
+    from pbicrl.inference.likelihood import PreferenceLikelihood
+    from pbicrl.inference.samplers import driver
 
     lik = PreferenceLikelihood.from_dataset(make_problem(5, seed=1).dataset)
     driver.sample(lik, n_chains=1, n_jobs=1, n_iterations=50, progress=False)
@@ -587,8 +586,8 @@ def test_a_cold_numba_cache_is_detected_and_announced(tmp_path, capsys, monkeypa
 
 # ---------------------------------------------------------------------------------------------- 7. names
 def test_sample_keeps_the_feature_names():
-    from pbicrl.likelihood import PreferenceLikelihood
-    from pbicrl.samplers import sample
+    from pbicrl.inference.likelihood import PreferenceLikelihood
+    from pbicrl.inference.samplers import sample
 
     ds = make_problem(5, seed=2).dataset
     lik = PreferenceLikelihood.from_dataset(ds)
@@ -761,7 +760,7 @@ def test_plot_truth_with_an_unknown_name_is_an_error(run_dir, tmp_path, capsys):
 # ---------------------------------------------------------------------------------------------- 12. concurrent runs, permissions
 def _claim_in_child(out: Path) -> subprocess.Popen:
     """Another process that claims ``out`` (as a running ``pbicrl infer`` does) and holds it until killed."""
-    code = ("import sys; from pbicrl.results import claim_out_dir; "
+    code = ("import sys; from pbicrl.inference.results import claim_out_dir; "
             f"claim_out_dir({str(out)!r}); print('claimed', flush=True); sys.stdin.read()")
     proc = subprocess.Popen([PY, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stdout.readline().strip() == "claimed"
@@ -770,7 +769,7 @@ def _claim_in_child(out: Path) -> subprocess.Popen:
 
 @pytest.mark.skipif(not LINUX, reason="flock")
 def test_a_second_run_to_the_same_out_is_refused_before_sampling(run_dir, demo, tmp_path, capsys):
-    from pbicrl.results import OutputBusyError
+    from pbicrl.inference.results import OutputBusyError
 
     out = tmp_path / "run"
     holder = _claim_in_child(out)

@@ -12,7 +12,7 @@ from pbicrl.api import infer, infer_from_config
 from pbicrl.config import DEPRECATED_NAMES, ConfigError, InferConfig, canonical_names, check_setting, load_config
 from pbicrl.errors import PbicrlWarning
 from pbicrl.experiments.tasks import INFER_EXTRA, prepare_infer
-from pbicrl.synthetic import make_problem
+from pbicrl.inference.synthetic import make_problem
 
 FIELDS = InferConfig.defaults()
 
@@ -111,7 +111,7 @@ def test_a_config_and_its_keyword_arguments_give_the_same_chains(dataset):
 
 
 def test_a_prior_given_twice_is_an_error(dataset):
-    from pbicrl.priors import IndicatorPrior, WeightPrior
+    from pbicrl.inference.priors import IndicatorPrior, WeightPrior
 
     with pytest.raises(ConfigError, match="weight_prior: given together with prior"):
         infer(dataset, weight_prior=WeightPrior("flat"), prior="normal", progress=False)

@@ -1,9 +1,11 @@
 """pbicrl: Bayesian constraint inference from ranked demonstrations.
 
-Architecture (one module per concept)::
+Architecture (one folder per stage)::
 
-    data -> preferences -> likelihood -> samplers -> results
-    (priors, synthetic problems; envs, demonstrators, experiments and baselines beside it; the CLI on top)
+    inference/   data -> constraints -> preferences -> likelihood (+ priors) -> samplers -> results
+    analysis/    identify, diagnostics, check, calibration, metrics, margins, suggest, export, plots
+    envs/ demonstrators/ baselines/ experiments/ io/ ui/   beside it
+    cli/         the command line on top; api.py, config.py, runs.py: the Python entry points
 
 Quick start::
 
@@ -15,17 +17,20 @@ Quick start::
     post = pbicrl.load_run("runs/demo")            # the same Posterior back
 """
 
+from pbicrl import _moved
 from pbicrl._version import __version__
 from pbicrl.api import infer, infer_from_config, load_run
 from pbicrl.config import InferConfig
-from pbicrl.data import Dataset, DatasetError, list_shipped_datasets, load_dataset, resolve_dataset_path
+from pbicrl.inference.data import Dataset, DatasetError, list_shipped_datasets, load_dataset, resolve_dataset_path
 from pbicrl.errors import PbicrlWarning
-from pbicrl.identify import Identification, identify
-from pbicrl.likelihood import PreferenceLikelihood, log_likelihood
-from pbicrl.preferences import Margins, PreferenceError, Preferences
-from pbicrl.priors import IndicatorPrior, PriorError, WeightPrior
-from pbicrl.results import Posterior
-from pbicrl.samplers import SamplerSettings, build_kernel, sample
+from pbicrl.analysis.identify import Identification, identify
+from pbicrl.inference.likelihood import PreferenceLikelihood, log_likelihood
+from pbicrl.inference.preferences import Margins, PreferenceError, Preferences
+from pbicrl.inference.priors import IndicatorPrior, PriorError, WeightPrior
+from pbicrl.inference.results import Posterior
+from pbicrl.inference.samplers import SamplerSettings, build_kernel, sample
+
+_moved.install()
 
 __all__ = [
     "Dataset", "DatasetError", "load_dataset", "resolve_dataset_path", "list_shipped_datasets",

@@ -1,4 +1,4 @@
-"""High-level entry points: ``pbicrl.infer(dataset, ...)`` from a dataset to a :class:`~pbicrl.results.Posterior`,
+"""High-level entry points: ``pbicrl.infer(dataset, ...)`` from a dataset to a :class:`~pbicrl.inference.results.Posterior`,
 and ``pbicrl.load_run(run_dir)`` from a saved run back to one."""
 
 from __future__ import annotations
@@ -10,13 +10,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from pbicrl.config import DEPRECATED_NAMES, ConfigError, InferConfig, canonical_names
-from pbicrl.constraints import Constraint, ConstraintSet, constraint_from_dict
-from pbicrl.data import Dataset
-from pbicrl.likelihood import PreferenceLikelihood
-from pbicrl.preferences import Margins
-from pbicrl.priors import IndicatorPrior, WeightPrior
-from pbicrl.results import Posterior
-from pbicrl.samplers import SamplerSettings, sample
+from pbicrl.inference.constraints import Constraint, ConstraintSet, constraint_from_dict
+from pbicrl.inference.data import Dataset
+from pbicrl.inference.likelihood import PreferenceLikelihood
+from pbicrl.inference.preferences import Margins
+from pbicrl.inference.priors import IndicatorPrior, WeightPrior
+from pbicrl.inference.results import Posterior
+from pbicrl.inference.samplers import SamplerSettings, sample
 
 __all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config"]
 
@@ -123,7 +123,7 @@ def infer(
     dataset : Dataset
         Ranked demonstrations (group 1 = best).
     sampler : {"pbicrl", "paper", "authors", "bpl"}
-        MCMC sampler, see :mod:`pbicrl.samplers.kernels` (formerly ``method``).
+        MCMC sampler, see :mod:`pbicrl.inference.samplers.kernels` (formerly ``method``).
     likelihood : {"grouped", "pairwise"}
         ``grouped`` (default): the exact grouped Plackett-Luce likelihood, calibrated for grouped rankings.
         ``pairwise``: the paper's Eq. 7 over cross-group pairs (for reproduction; overconfident on grouped
@@ -136,17 +136,17 @@ def infer(
         Inverse temperature :math:`\beta`.
     power : float or "pairs", optional
         ``pairwise`` only: likelihood power in (0, 1] (default 1 = the paper); ``"pairs"`` = trajectories /
-        pairs (see :class:`~pbicrl.likelihood.PreferenceLikelihood`).
+        pairs (see :class:`~pbicrl.inference.likelihood.PreferenceLikelihood`).
     pairs : "all" or int, optional
         ``pairwise`` only: every cross-group pair (default, paper Eq. 7) or ``pairs`` random pairs per group
         pair (seeded by ``pairs_seed``).
     iterations, burn_in, thin, chains, seed, jobs, sigma, f_s, p_flip, init_scale, init_range
-        Sampler settings (:class:`~pbicrl.samplers.SamplerSettings`); ``iterations`` per chain (formerly
+        Sampler settings (:class:`~pbicrl.inference.samplers.SamplerSettings`); ``iterations`` per chain (formerly
         ``n_iterations``), ``chains`` independent chains (formerly ``n_chains``), ``jobs`` worker processes
         (formerly ``n_jobs``; the draws do not depend on it).
     prior, prior_low, prior_high, prior_mean, prior_scale, prior_abs_scale, prior_df, penalty_sign
         The prior on each penalty weight (default: half-Student-t with 3 degrees of freedom on (-inf, 0], scale
-        :math:`2.5/(\beta\,\mathrm{sd}_j)` per feature), see :class:`~pbicrl.priors.WeightPrior`.
+        :math:`2.5/(\beta\,\mathrm{sd}_j)` per feature), see :class:`~pbicrl.inference.priors.WeightPrior`.
     indicator_pi : float
         Bernoulli prior probability :math:`\pi` of each constraint (default 1/2).
     weight_prior, indicator_prior
@@ -154,12 +154,12 @@ def infer(
     candidates : names or indices, optional
         Features that may be constraints (default: all known features; with parametric ``constraints``,
         only those, as in Algorithm 2).
-    constraints : sequence of Constraint (or dicts for :func:`~pbicrl.constraints.constraint_from_dict`)
+    constraints : sequence of Constraint (or dicts for :func:`~pbicrl.inference.constraints.constraint_from_dict`)
         Parametric constraints over the dataset's states (axis halfspace, halfspace, box, ball).
     sigma_theta, p_theta
-        Parameter random-walk step and move probability (see :class:`~pbicrl.samplers.SamplerSettings`).
+        Parameter random-walk step and move probability (see :class:`~pbicrl.inference.samplers.SamplerSettings`).
     alpha : float
-        Level of the identifiability analysis run before sampling (:func:`pbicrl.identify.identify`); its
+        Level of the identifiability analysis run before sampling (:func:`pbicrl.analysis.identify.identify`); its
         result is in ``summary.json`` under ``identified``.
     progress : bool
         Progress bar.
@@ -225,7 +225,7 @@ def infer(
         p_flip=p_flip, init_scale=init_scale, init_range=tuple(init_range), weight_prior=wprior,
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
         candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta)
-    from pbicrl.identify import identify
+    from pbicrl.analysis.identify import identify
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
                      candidates=candidates, penalty_sign=wprior.sign if sampler not in ("paper", "authors") else "any",
@@ -258,7 +258,7 @@ def infer_from_config(dataset: Dataset, config: InferConfig, *, progress: bool =
 
 
 def weight_prior_from_config(c: InferConfig) -> WeightPrior:
-    """The :class:`~pbicrl.priors.WeightPrior` a config describes (``prior``, ``prior_*``, ``penalty_sign``)."""
+    """The :class:`~pbicrl.inference.priors.WeightPrior` a config describes (``prior``, ``prior_*``, ``penalty_sign``)."""
     return _weight_prior(**{k: getattr(c, k) for k in _PRIOR_SETTINGS})
 
 

@@ -169,7 +169,7 @@ class InferConfig:
             if value is not None:
                 out[key] = value
         if out.get("constraints"):
-            from pbicrl.constraints import constraint_from_dict
+            from pbicrl.inference.constraints import constraint_from_dict
 
             for k, spec in enumerate(out["constraints"]):
                 if not isinstance(spec, dict):

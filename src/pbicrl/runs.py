@@ -1,16 +1,16 @@
-"""Read a run directory written by ``pbicrl infer`` / :meth:`pbicrl.results.Posterior.save`.
+"""Read a run directory written by ``pbicrl infer`` / :meth:`pbicrl.inference.results.Posterior.save`.
 
 :func:`load_run` returns a :class:`RunRecord`: the draws of ``chains.npz`` and the numbers of
-``summary.json``, with the same attribute names as :class:`~pbicrl.results.Posterior` (``indicators``,
+``summary.json``, with the same attribute names as :class:`~pbicrl.inference.results.Posterior` (``indicators``,
 ``penalty_weights``, ``log_likelihood``, ``feature_names``, ``map_indicators``, ...), so diagnostics, export
 and plots accept either. It is the checked reader underneath; the public way to read a run back is
-``pbicrl.load_run`` / :meth:`pbicrl.results.Posterior.load`, which returns a full
-:class:`~pbicrl.results.Posterior`.
+``pbicrl.load_run`` / :meth:`pbicrl.inference.results.Posterior.load`, which returns a full
+:class:`~pbicrl.inference.results.Posterior`.
 
 ``summary.json`` carries a ``schema_version`` (:data:`SCHEMA_VERSION`; files written before
 it existed are version 1). Every version up to the current one loads: the fields added in version 2
 (``selected``, ``most_frequent_set``, conditional medians, ...) are computed from the draws by the
-:class:`~pbicrl.draws.DrawsView` methods, so they exist for old runs too; :attr:`RunRecord.identified`
+:class:`~pbicrl.inference.draws.DrawsView` methods, so they exist for old runs too; :attr:`RunRecord.identified`
 is ``None`` there. A newer version is refused with a message saying so.
 """
 
@@ -26,12 +26,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.draws import DrawsView
+from pbicrl.inference.draws import DrawsView
 
 __all__ = ["RunRecord", "RunError", "SCHEMA_VERSION", "check_run_dir", "load_run", "constraint_set_of"]
 
 SCHEMA_VERSION = 2
-"""Version of the ``summary.json`` layout :meth:`pbicrl.results.Posterior.save` writes (files without one are 1)."""
+"""Version of the ``summary.json`` layout :meth:`pbicrl.inference.results.Posterior.save` writes (files without one are 1)."""
 
 _MAX_SUMMARY_BYTES = 64 << 20  # a summary.json is a few hundred KiB at most; more is not a summary
 
@@ -71,7 +71,7 @@ class RunRecord(DrawsView):
         Feature index of the constraint each parameter belongs to (from ``chains.npz``, else from the
         ``"<constraint>.<parameter>"`` names).
     counts : ndarray (chains, 7) or None
-        Per-chain move counters (:attr:`pbicrl.results.Posterior.counts`), when the run recorded them.
+        Per-chain move counters (:attr:`pbicrl.inference.results.Posterior.counts`), when the run recorded them.
     move, accepted, acceptance_fraction : ndarray (chains, draws) or None
         Per-draw move type, acceptance and acceptance fraction, when the run recorded them.
     """
@@ -198,7 +198,7 @@ def check_run_dir(run_dir: str | os.PathLike[str]) -> None:
         ``chains.npz`` empty, not an archive, with an unreadable or huge header or arrays larger than memory;
         ``summary.json`` not a JSON object or a known key of the wrong type.
     """
-    from pbicrl.data import DatasetError, inspect_npz
+    from pbicrl.inference.data import DatasetError, inspect_npz
 
     run = Path(run_dir)
     if not run.is_dir():
@@ -320,16 +320,16 @@ def _read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
 
 
 def constraint_set_of(run: Any, dataset: Any) -> Any:
-    """The :class:`~pbicrl.constraints.ConstraintSet` a run sampled with, rebuilt over ``dataset``, or None.
+    """The :class:`~pbicrl.inference.constraints.ConstraintSet` a run sampled with, rebuilt over ``dataset``, or None.
 
-    ``run`` is a :class:`~pbicrl.results.Posterior` or :class:`RunRecord`; its ``settings["constraints"]`` hold
+    ``run`` is a :class:`~pbicrl.inference.results.Posterior` or :class:`RunRecord`; its ``settings["constraints"]`` hold
     each constraint's ``to_dict()`` plus ``resolved_bounds``, which record the prior only (the features depend
     on the family, dimensions and direction), so they are left out.
     """
     specs = (dict(getattr(run, "settings", {}) or {})).get("constraints")
     if not specs:
         return None
-    from pbicrl.constraints import ConstraintSet, constraint_from_dict
+    from pbicrl.inference.constraints import ConstraintSet, constraint_from_dict
 
     return ConstraintSet(tuple(constraint_from_dict({k: v for k, v in spec.items() if k != "resolved_bounds"})
                                for spec in specs), dataset)

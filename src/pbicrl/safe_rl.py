@@ -643,7 +643,7 @@ def _cmd_train_safe(args: argparse.Namespace) -> int:
 
 def add_subcommands(sub: Any) -> None:
     """Register ``pbicrl train-safe`` (imports nothing optional until it runs)."""
-    from pbicrl._argtypes import nonneg_int, positive_int
+    from pbicrl.cli.argtypes import nonneg_int, positive_int
 
     def limit(text: str) -> float:
         try:

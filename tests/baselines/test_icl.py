@@ -163,7 +163,7 @@ def test_constraint_location_read_off():
 
 
 def test_expert_coordinates_uses_the_good_group():
-    from pbicrl.data import Dataset
+    from pbicrl.inference.data import Dataset
 
     feats = [np.zeros((5, 2)) for _ in range(6)]
     states = [np.full((5, 1), float(i)) for i in range(6)]
@@ -209,7 +209,7 @@ def test_point_mass_smoke_run_and_resume(tmp_path):
 
 
 def test_run_icl_task_on_a_dataset(tmp_path):
-    from pbicrl.data import Dataset
+    from pbicrl.inference.data import Dataset
 
     expert = point_mass_expert_demos(12, seed=2)
     bad = point_mass_expert_demos(4, seed=3)
@@ -231,7 +231,7 @@ def test_reproduce_icl_smoke(tmp_path, monkeypatch):
     """`pbicrl reproduce icl` on a synthetic stand-in wall dataset with the smoke budget; `all` leaves it out."""
     pytest.importorskip("mujoco")
     from pbicrl.experiments.reproduce import EXPERIMENTS, reproduce
-    from pbicrl.synthetic import make_wall_problem
+    from pbicrl.inference.synthetic import make_wall_problem
 
     assert "icl" in EXPERIMENTS
     data = tmp_path / "wall.npz"

@@ -151,7 +151,7 @@ def test_load_policy_missing_file(tmp_path):
 def test_cli_parser_mounts_and_validates():
     import argparse
 
-    from pbicrl.demonstrators.cli import add_subcommands, build_parser
+    from pbicrl.cli.wall import add_subcommands, build_parser
 
     parent = argparse.ArgumentParser(prog="pbicrl")
     sub = parent.add_subparsers(dest="cmd")

@@ -10,7 +10,7 @@ import pytest
 
 gym = pytest.importorskip("gymnasium")
 
-from pbicrl.constraints import AxisHalfspace, Ball, Box, Halfspace  # noqa: E402
+from pbicrl.inference.constraints import AxisHalfspace, Ball, Box, Halfspace  # noqa: E402
 from pbicrl.envs.inferred_cost import InferredConstraintCost, _inside_many  # noqa: E402
 from pbicrl.envs.point_mass import PointMassEnv  # noqa: E402
 from pbicrl.envs.regions import FEATURE_NAMES as NAV  # noqa: E402

@@ -32,7 +32,6 @@ def _teleport_x(env, x: float) -> None:
 
 def test_lazy_package_import_and_specs():
     from pbicrl import envs
-
     assert envs.make_wall_env is make_wall_env
     assert WALL_SPECS["halfcheetah"].wall_x == 8.0 and WALL_SPECS["halfcheetah"].penalty == -50.0
     assert WALL_SPECS["ant"].wall_x == 10.0 and WALL_SPECS["ant"].penalty == -100.0

@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("gymnasium")
 
-from pbicrl.data import Dataset
+from pbicrl.inference.data import Dataset
 from pbicrl.demonstrators.navigation import Episode, generate_navigation_demos, make_nav_env, rollout_episodes
 from pbicrl.envs.point_mass import POINT_MASS_TASK
 
@@ -87,7 +87,7 @@ def test_plot_writes_png(tmp_path):
 
 
 def test_cli_grid_and_errors(tmp_path, capsys):
-    from pbicrl.envs.cli import main
+    from pbicrl.cli.navigation import main
 
     assert main(["grid", "--out", str(tmp_path / "g.npz")]) == 0
     assert Dataset.load(tmp_path / "g.npz").group.tolist() == [1, 2, 3]
@@ -224,7 +224,7 @@ def test_paper_protocol_mix_extremes_and_goal_filter(smoke_policy):
 def test_paper_protocol_filter_counts_rejections():
     pytest.importorskip("stable_baselines3")
     from pbicrl.demonstrators.navigation import generate_paper_protocol_demos
-    from pbicrl.envs.cli import shipped_policy
+    from pbicrl.cli.navigation import shipped_policy
 
     # the shipped point-mass policies need ~17-25 steps: an 18-step limit makes many of them miss the goal
     ds, rep = generate_paper_protocol_demos("point_mass", shipped_policy("point_mass", "good"),
@@ -240,7 +240,7 @@ def test_paper_protocol_filter_counts_rejections():
 
 def test_cli_paper_protocol(tmp_path, capsys):
     pytest.importorskip("stable_baselines3")
-    from pbicrl.envs.cli import main
+    from pbicrl.cli.navigation import main
 
     out = tmp_path / "pm.npz"
     assert main(["demos", "--env", "point_mass", "--paper-protocol", "-n", "2", "--p-good", "0.2",

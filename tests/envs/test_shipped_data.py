@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import pbicrl
-from pbicrl.data import load_dataset
+from pbicrl.inference.data import load_dataset
 
 DATA = Path(pbicrl.__file__).resolve().parent / "data"
 MB = 1024 * 1024

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import pbicrl
-from pbicrl.data import Dataset, load_dataset
+from pbicrl.inference.data import Dataset, load_dataset
 
 DATA = Path(pbicrl.__file__).parent / "data"
 WALLS = {"halfcheetah": 8.0, "ant": 10.0}

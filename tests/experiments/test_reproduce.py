@@ -5,7 +5,7 @@ import json
 import pytest
 
 from pbicrl.experiments.reproduce import EXPERIMENTS, reproduce
-from pbicrl.synthetic import make_problem, make_wall_problem
+from pbicrl.inference.synthetic import make_problem, make_wall_problem
 
 
 @pytest.fixture(scope="module")

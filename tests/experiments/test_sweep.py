@@ -20,7 +20,7 @@ from pbicrl.experiments.executors import LocalExecutor, SerialExecutor, make_exe
 from pbicrl.experiments.sweep import expand_grid, load_sweep, run_tasks
 from pbicrl.experiments.tasks import (CACHE_VERSION, RESULT_FILE, Task, TaskError, canonical_json, find_done,
                                       load_result, register_task)
-from pbicrl.synthetic import make_problem
+from pbicrl.inference.synthetic import make_problem
 
 INFER = {"iterations": 3000, "chains": 2, "burn_in": 1000}
 

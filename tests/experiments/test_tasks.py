@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 
 from pbicrl.api import infer
-from pbicrl.data import load_dataset
+from pbicrl.inference.data import load_dataset
 from pbicrl.errors import PbicrlWarning
 from pbicrl.experiments import tasks
 from pbicrl.experiments.sweep import run_tasks
 from pbicrl.experiments.tasks import (CACHE_VERSION, RESULT_FILE, Task, TaskError, adopt_older_runs, execute_task,
                                       find_done, in_task_worker, infer_config_of_reproduce_run, prepare_infer,
                                       read_result, run_infer, summarize_infer, task_jobs, task_worker, write_shipped)
-from pbicrl.priors import WeightPrior
-from pbicrl.results import Posterior
-from pbicrl.synthetic import make_problem
+from pbicrl.inference.priors import WeightPrior
+from pbicrl.inference.results import Posterior
+from pbicrl.inference.synthetic import make_problem
 
 ITER = 600
 

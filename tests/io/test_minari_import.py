@@ -12,7 +12,7 @@ minari = pytest.importorskip("minari")
 gym = pytest.importorskip("gymnasium")
 
 from pbicrl.cli import main  # noqa: E402
-from pbicrl.data import DatasetError, load_dataset  # noqa: E402
+from pbicrl.inference.data import DatasetError, load_dataset  # noqa: E402
 from pbicrl.io import from_minari  # noqa: E402
 
 DATASET_ID = "pbicrltest/walk/ranked-v0"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pbicrl.cli import main
-from pbicrl.data import Dataset, load_dataset
+from pbicrl.inference.data import Dataset, load_dataset
 from pbicrl.io import TableError, columns_to_dataset, read_csv, read_parquet, read_table, write_csv
 
 

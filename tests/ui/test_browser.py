@@ -29,7 +29,7 @@ from selenium.webdriver.chrome.service import Service  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 
-from pbicrl.data import load_dataset  # noqa: E402
+from pbicrl.inference.data import load_dataset  # noqa: E402
 from pbicrl.ui.server import create_app  # noqa: E402
 from pbicrl.ui.session import LabelSession  # noqa: E402
 

@@ -8,7 +8,7 @@ import pytest
 import pbicrl
 from pbicrl.cli import main
 from pbicrl.config import ConfigError
-from pbicrl.data import Dataset, DatasetError, load_dataset
+from pbicrl.inference.data import Dataset, DatasetError, load_dataset
 
 
 def _trajs(n: int = 6) -> list[np.ndarray]:

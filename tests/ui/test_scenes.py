@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import pbicrl
-from pbicrl.data import Dataset
-from pbicrl.synthetic import make_region_problem, make_wall_problem
+from pbicrl.inference.data import Dataset
+from pbicrl.inference.synthetic import make_region_problem, make_wall_problem
 from pbicrl.ui.scenes import MAX_THUMBNAIL_POINTS, normalise_env_id, scene_for, thumbnail_payload, trajectory_payload
 
 

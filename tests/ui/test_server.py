@@ -16,7 +16,7 @@ pytest.importorskip("httpx", reason="Starlette's test client needs httpx")
 
 import pbicrl  # noqa: E402
 from pbicrl.cli import main  # noqa: E402
-from pbicrl.data import Dataset, DatasetError, load_dataset  # noqa: E402
+from pbicrl.inference.data import Dataset, DatasetError, load_dataset  # noqa: E402
 from pbicrl.runs import load_run  # noqa: E402
 from pbicrl.ui.server import create_app  # noqa: E402
 from pbicrl.ui.session import LabelSession  # noqa: E402

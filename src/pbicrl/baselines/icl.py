@@ -22,7 +22,7 @@ The constraint function is a small MLP with a sigmoid output over the constraine
 x-position for HalfCheetah/Ant, the position for the point mass), its input standardised with the expert
 data's mean and spread. For a 1-D coordinate, the learned constraint location :math:`\\hat\\vartheta` is read off
 where :math:`c` first reaches 0.5 (:func:`constraint_location`) and scored with
-:func:`pbicrl.metrics.cmse_location`; :func:`pbicrl.metrics.cmse_grid` compares :math:`c` with the true
+:func:`pbicrl.analysis.metrics.cmse_location`; :func:`pbicrl.analysis.metrics.cmse_grid` compares :math:`c` with the true
 indicator over a grid.
 
 Budgets: :func:`icl_preset` (``"smoke"``: well under a minute on the point mass; ``"default"``: one
@@ -266,7 +266,7 @@ class ICLEnv:
     true_indicator : callable
         Indicator of the true constraint on rows of coordinates (evaluation only, never used for learning).
     grid : ndarray, shape (G, k)
-        Positions for :func:`pbicrl.metrics.cmse_grid`.
+        Positions for :func:`pbicrl.analysis.metrics.cmse_grid`.
     location_grid : ndarray, shape (L,), or None
         1-D positions scanned for the constraint location (None: no scalar location, e.g. the point mass).
     true_location : float or None
@@ -365,7 +365,7 @@ def point_mass_expert_demos(n: int, seed: int = 0) -> list[NDArray[np.float64]]:
 
 def expert_coordinates(dataset: Any, *, group: int = 1, n: int | None = 200, seed: int = 0,
                        dims: Sequence[int] | None = None) -> list[NDArray[np.float64]]:
-    """Constrained coordinates of the expert trajectories of a :class:`pbicrl.data.Dataset`.
+    """Constrained coordinates of the expert trajectories of a :class:`pbicrl.inference.data.Dataset`.
 
     Parameters
     ----------
@@ -379,7 +379,7 @@ def expert_coordinates(dataset: Any, *, group: int = 1, n: int | None = 200, see
     dims : sequence of int, optional
         Columns of ``states`` to use (default: all).
     """
-    from pbicrl.data import load_dataset
+    from pbicrl.inference.data import load_dataset
 
     ds = dataset if not isinstance(dataset, (str, os.PathLike)) else load_dataset(dataset)
     if ds.states is None:
@@ -695,7 +695,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
         without a location), ``cmse_grid``, ``runtime_s`` (wall time summed over sessions), per-round history,
         final-policy statistics and the budget.
     """
-    from pbicrl.metrics import cmse_grid, cmse_location
+    from pbicrl.analysis.metrics import cmse_grid, cmse_location
 
     spec = icl_env(env) if isinstance(env, str) else env
     cfg = icl_preset(config, spec.name) if isinstance(config, str) else config.validate()
@@ -898,7 +898,7 @@ def run_icl_task(config: dict, out_dir: Path) -> dict[str, Any]:
     """Task entry point (``"pbicrl.baselines.icl:run_icl_task"``): one ICL seed on a dataset's good demos.
 
     Config keys: ``env`` (``halfcheetah``/``ant``/``point_mass``), ``data`` (path to a
-    :class:`pbicrl.data.Dataset` with states; or ``"scripted"`` for the point mass's scripted expert),
+    :class:`pbicrl.inference.data.Dataset` with states; or ``"scripted"`` for the point mass's scripted expert),
     ``budget`` (preset name) and/or ``icl`` (dict of :class:`ICLConfig` overrides), ``budget_sha256`` (ignored
     here: lets a caller hash the preset's values into the task), ``seed``, ``n_expert``
     (default 200), ``expert_group`` (default 1), ``demos_seed`` (the draw of the expert demonstrations),

@@ -4,7 +4,7 @@ Lazy: ``import pbicrl.demonstrators`` does not import torch or Stable-Baselines3
 ``train_sac`` / ``load_policy`` live in :mod:`pbicrl.demonstrators.sac`; the
 HalfCheetah/Ant wall demonstrators in :mod:`pbicrl.demonstrators.wall`; the
 command-line entry (``python -m pbicrl.demonstrators``) in
-:mod:`pbicrl.demonstrators.cli`.
+:mod:`pbicrl.cli.wall`.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""``python -m pbicrl.demonstrators ...``: see :mod:`pbicrl.demonstrators.cli`."""
+"""``python -m pbicrl.demonstrators ...``: see :mod:`pbicrl.cli.wall`."""
 
-from pbicrl.demonstrators.cli import main
+from pbicrl.cli.wall import main
 
 raise SystemExit(main())

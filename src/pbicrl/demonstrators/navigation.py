@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl._atomic import atomic_path, write_text
-from pbicrl.data import Dataset
+from pbicrl.inference.data import Dataset
 
 __all__ = [
     "NAV_ENVS",
@@ -603,7 +603,7 @@ def group_feature_balance(dataset: Dataset, features: Any = None) -> dict[str, A
     """Per-group means/sds of per-trajectory mean features and standardised mean differences.
 
     The per-trajectory feature is the trajectory's mean over its states
-    (:attr:`pbicrl.data.Dataset.mean_features`, what the ranking likelihood scores).  For
+    (:attr:`pbicrl.inference.data.Dataset.mean_features`, what the ranking likelihood scores).  For
     groups ``a, b`` the standardised mean difference (SMD) is ``(mean_a - mean_b) / s_p`` with
     the pooled sd ``s_p = sqrt(((n_a-1) s_a^2 + (n_b-1) s_b^2) / (n_a + n_b - 2))``.
 

@@ -5,7 +5,7 @@
 * "violating" demonstrator: SAC trained on the nominal reward only, so it runs
   through the wall.
 
-Demonstration datasets (:class:`pbicrl.data.Dataset`) have
+Demonstration datasets (:class:`pbicrl.inference.data.Dataset`) have
 
 * ``features`` (d = 2): ``forward_displacement`` :math:`x_{t+1}-x_t` and
   ``action_sq_norm`` :math:`\\lVert a_t\\rVert^2`, ``nominal_weights`` = [20, -0.1];
@@ -40,17 +40,20 @@ def _check_mode(mode: str) -> bool:
 class _EnvFactory:
     """Picklable zero-argument env factory."""
 
-    def __init__(self, name: str, constrained: bool, max_episode_steps: int) -> None:
+    def __init__(self, name: str, constrained: bool, max_episode_steps: int, position_bonus: float = 0.0) -> None:
         self.name, self.constrained, self.max_episode_steps = name, constrained, max_episode_steps
+        self.position_bonus = position_bonus
 
     def __call__(self):
         from pbicrl.envs.mujoco_wall import make_wall_env
 
-        return make_wall_env(self.name, constrained=self.constrained, max_episode_steps=self.max_episode_steps)
+        return make_wall_env(self.name, constrained=self.constrained, max_episode_steps=self.max_episode_steps,
+                             position_bonus=self.position_bonus)
 
 
 def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.PathLike, *,
-                      seed: int = 0, max_episode_steps: int = 500, **sac_kwargs: Any) -> Path:
+                      seed: int = 0, max_episode_steps: int = 500, position_bonus: float = 0.0,
+                      **sac_kwargs: Any) -> Path:
     """Train the good or violating demonstrator of a wall environment with :func:`train_sac`.
 
     Parameters
@@ -63,6 +66,9 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
     seed : int
     max_episode_steps : int
         Training episode length (500, the demonstration length).
+    position_bonus : float
+        Training-only shaping for ``mode="good"``: ``position_bonus * min(x, wall)`` per step
+        (see :class:`pbicrl.envs.mujoco_wall.WallPenaltyWrapper`); 0 is the paper's reward.
     **sac_kwargs
         Passed to :func:`pbicrl.demonstrators.sac.train_sac`.
 
@@ -76,13 +82,19 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
 
     constrained = _check_mode(mode)
     spec = wall_spec(name)
+    if not (np.isfinite(position_bonus) and position_bonus >= 0):
+        raise ValueError(f"position_bonus: must be a finite value >= 0, got {position_bonus!r}")
+    if position_bonus and not constrained:
+        raise ValueError("position_bonus: only applies to mode='good' (the constrained reward)")
     meta = {"env": name, "base_env_id": spec.env_id, "mode": mode, "constrained_reward": constrained,
             "wall_x": spec.wall_x, "penalty": spec.penalty, "alive_bonus": spec.alive_bonus,
             "make_kwargs": spec.make_kwargs, "max_episode_steps": max_episode_steps,
             "reward": "20*dx - 0.1*|a|^2" + (" + alive_bonus" if spec.alive_bonus else "")
-                      + (f" + {spec.penalty} * [x >= {spec.wall_x}]" if constrained else "")}
+                      + (f" + {spec.penalty} * [x >= {spec.wall_x}]" if constrained else "")
+                      + (f" + {position_bonus} * min(x, {spec.wall_x})" if position_bonus else ""),
+            "position_bonus": float(position_bonus)}
     assert name.lower() in WALL_SPECS
-    return train_sac(_EnvFactory(name.lower(), constrained, max_episode_steps), total_steps, out_dir,
+    return train_sac(_EnvFactory(name.lower(), constrained, max_episode_steps, float(position_bonus)), total_steps, out_dir,
                      seed=seed, metadata=meta, **sac_kwargs)
 
 
@@ -150,7 +162,7 @@ def generate_wall_demos(name: str, good_policy: str | os.PathLike, violating_pol
     """
     import torch
 
-    from pbicrl.data import Dataset
+    from pbicrl.inference.data import Dataset
     from pbicrl.demonstrators.sac import load_policy
     from pbicrl.envs.mujoco_wall import (
         FEATURE_NAMES,
@@ -244,7 +256,7 @@ def plot_wall_visitation(dataset: Any, wall_x: float, out_png: str | os.PathLike
         import matplotlib.pyplot as plt
     except ImportError as exc:
         raise ImportError("plotting needs matplotlib: pip install \"pbicrl[plot]\"") from exc
-    from pbicrl.data import Dataset, load_dataset
+    from pbicrl.inference.data import Dataset, load_dataset
 
     ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
     if ds.states is None:

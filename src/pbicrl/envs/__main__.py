@@ -1,5 +1,5 @@
-"""``python -m pbicrl.envs ...``: see :mod:`pbicrl.envs.cli`."""
+"""``python -m pbicrl.envs ...``: see :mod:`pbicrl.cli.navigation`."""
 
-from pbicrl.envs.cli import main
+from pbicrl.cli.navigation import main
 
 raise SystemExit(main())

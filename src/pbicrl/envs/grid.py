@@ -16,7 +16,7 @@ cell for cell; this layout realises its description):
 * ``tau_3`` along the bottom row and up the right column -- one red cell;
 
 ranked ``tau_1 > tau_2 > tau_3`` (groups 1, 2, 3).  :func:`grid_dataset` builds them as a
-:class:`pbicrl.data.Dataset`; :class:`GridEnv` is the matching Gymnasium environment
+:class:`pbicrl.inference.data.Dataset`; :class:`GridEnv` is the matching Gymnasium environment
 (needs the ``envs`` extra; the dataset does not).
 """
 
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.data import Dataset
+from pbicrl.inference.data import Dataset
 
 __all__ = [
     "GRID_COLOURS",

@@ -2,10 +2,10 @@ r"""A per-step cost from an inferred constraint: act on a posterior (Safety-Gymn
 
 :class:`InferredConstraintCost` wraps a Gymnasium environment and adds, at every step, a cost
 :math:`c_t \ge 0` for the state the step reached, computed from a posterior over constraints
-(:class:`pbicrl.results.Posterior` or a run directory read by :func:`pbicrl.runs.load_run`). The
+(:class:`pbicrl.inference.results.Posterior` or a run directory read by :func:`pbicrl.runs.load_run`). The
 reward :math:`r(s) = (w_n + c \circ w_p)^\top \phi(s)` has known features :math:`\phi_j` (columns of the
 dataset) and, optionally, parametric constraints :math:`\phi_{\vartheta_m}(s) = 1[s \in R(\vartheta_m)]`
-(:mod:`pbicrl.constraints`). Per step the wrapper needs the known features, ``features(obs, info) -> (d,)``,
+(:mod:`pbicrl.inference.constraints`). Per step the wrapper needs the known features, ``features(obs, info) -> (d,)``,
 and for parametric constraints the state, ``state(obs, info) -> (k,)`` (the columns the constraints'
 ``dims`` index). The shipped environments provide both (:func:`default_step_functions`).
 
@@ -50,7 +50,7 @@ try:
 except ImportError as exc:  # pragma: no cover - exercised only without the extra
     raise ImportError('pbicrl.envs.inferred_cost needs gymnasium: pip install "pbicrl[envs]"') from exc
 
-from pbicrl.constraints import Constraint, ConstraintError, constraint_from_dict
+from pbicrl.inference.constraints import Constraint, ConstraintError, constraint_from_dict
 
 __all__ = ["MODES", "InferredConstraintCost", "StepFunction", "default_step_functions"]
 
@@ -163,7 +163,7 @@ class InferredConstraintCost(gym.Wrapper):
     env : gymnasium.Env
         The environment (its reward is left as it is unless ``fold_into_reward``).
     posterior : Posterior, RunRecord or path
-        Draws of :math:`c, w_p` (and :math:`\vartheta`): a :class:`pbicrl.results.Posterior`, a
+        Draws of :math:`c, w_p` (and :math:`\vartheta`): a :class:`pbicrl.inference.results.Posterior`, a
         :class:`pbicrl.runs.RunRecord` or a run directory (read with :func:`pbicrl.runs.load_run`).
         Parametric constraints are rebuilt from ``settings["constraints"]`` (written by ``pbicrl infer``).
     features : callable, optional

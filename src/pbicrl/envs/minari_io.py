@@ -5,7 +5,7 @@ observations ``s_0..s_T``,
 actions, rewards, terminations and truncations.  pbicrl adds two per-step ``infos``
 entries: ``"features"`` (T+1, d) and ``"group"`` (T+1,) -- the episode's group label
 repeated, since Minari has no per-episode fields.  :func:`minari_to_dataset` converts a
-Minari dataset back into a :class:`pbicrl.data.Dataset`.
+Minari dataset back into a :class:`pbicrl.inference.data.Dataset`.
 
 Everything is local: datasets live under ``root`` (or ``$MINARI_DATASETS_PATH``, else
 ``~/.minari/datasets``) and nothing is downloaded.
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from pbicrl.data import Dataset
+from pbicrl.inference.data import Dataset
 
 __all__ = ["episodes_to_minari", "load_minari", "minari_to_dataset", "require_minari", "require_minari_create",
            "MINARI_HINT", "MINARI_CREATE_HINT"]

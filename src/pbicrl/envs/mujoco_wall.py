@@ -134,6 +134,12 @@ class WallPenaltyWrapper(gym.Wrapper):
         the reward is purely nominal ("violating" demonstrator).
     alive_bonus : float
         Added to the reward at every step that does not terminate the episode.
+    position_bonus : float
+        Training-only shaping of the good demonstrator (``constrained`` mode only): adds
+        ``position_bonus * min(x, wall_x)`` per step, so that staying close to the wall pays
+        for the rest of the episode (with ``20 * dx`` alone, the return only depends on the
+        final x and an exploring policy learns to stop early). 0 (default) is the paper's reward.
+        The features (and so the demonstrations' data) do not depend on it.
     nominal_weights : sequence of float, length 2
         Weights of ``[forward_displacement, action_sq_norm]``.
 
@@ -145,8 +151,11 @@ class WallPenaltyWrapper(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, wall_x: float, penalty: float, *, constrained: bool,
-                 alive_bonus: float = 0.0, nominal_weights=NOMINAL_WEIGHTS) -> None:
+                 alive_bonus: float = 0.0, position_bonus: float = 0.0,
+                 nominal_weights=NOMINAL_WEIGHTS) -> None:
         super().__init__(env)
+        if not (np.isfinite(position_bonus) and position_bonus >= 0):
+            raise ValueError(f"position_bonus: must be a finite value >= 0, got {position_bonus}")
         if not np.isfinite(wall_x):
             raise ValueError(f"wall_x: must be finite, got {wall_x}")
         if not (np.isfinite(penalty) and penalty <= 0):
@@ -158,6 +167,7 @@ class WallPenaltyWrapper(gym.Wrapper):
         self.penalty = float(penalty)
         self.constrained = bool(constrained)
         self.alive_bonus = float(alive_bonus)
+        self.position_bonus = float(position_bonus)
         self.nominal_weights = w
         self._x = 0.0
 
@@ -186,6 +196,8 @@ class WallPenaltyWrapper(gym.Wrapper):
         reward = nominal + (pen if self.constrained else 0.0)
         if not terminated:
             reward += self.alive_bonus
+        if self.constrained and self.position_bonus:
+            reward += self.position_bonus * min(x_after, self.wall_x)
         info = dict(info)
         info.update(features=phi, x_position=x_after, x_position_before=x_before, in_wall=bool(in_wall),
                     wall_penalty=pen, nominal_reward=nominal, base_reward=float(base_reward))
@@ -193,7 +205,7 @@ class WallPenaltyWrapper(gym.Wrapper):
 
 
 def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
-                  render_mode: str | None = None, **overrides: Any) -> gym.Env:
+                  render_mode: str | None = None, position_bonus: float = 0.0, **overrides: Any) -> gym.Env:
     """Create a wall environment.
 
     Parameters
@@ -206,6 +218,8 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
         Episode length (the paper's demonstrations have 500 steps).
     render_mode : str, optional
         Passed to :func:`gymnasium.make`.
+    position_bonus : float
+        Training-only shaping of the good demonstrator, see :class:`WallPenaltyWrapper`.
     **overrides
         Extra keyword arguments for :func:`gymnasium.make` (override the spec's).
 
@@ -224,7 +238,7 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
     quiet_mujoco_warnings()  # no MUJOCO_LOG.TXT in the working directory, no settotalmass notice per env
     base = gym.make(spec.env_id, render_mode=render_mode, max_episode_steps=10**9, **kwargs)
     env = WallPenaltyWrapper(base, spec.wall_x, spec.penalty, constrained=constrained,
-                             alive_bonus=spec.alive_bonus)
+                             alive_bonus=spec.alive_bonus, position_bonus=position_bonus)
     return gym.wrappers.TimeLimit(env, max_episode_steps=int(max_episode_steps))
 
 

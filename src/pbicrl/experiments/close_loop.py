@@ -138,7 +138,7 @@ def _infer(plan: EnvPlan, cfg: CloseLoopConfig, out: Path) -> Path:
     if (run_dir / "summary.json").is_file():
         return run_dir
     from pbicrl.api import infer
-    from pbicrl.data import load_dataset
+    from pbicrl.inference.data import load_dataset
 
     _log(f"inferring the {plan.env} constraint ({cfg.chains} chains x {cfg.iterations} iterations)")
     post = infer(load_dataset(plan.env), iterations=cfg.iterations, chains=cfg.chains, jobs=1, seed=0,

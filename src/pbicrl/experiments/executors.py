@@ -9,7 +9,7 @@ runs its task's MCMC chains in-process, each from its own child of the task's ``
 * :class:`RayExecutor` - Ray's task API (``ray.remote``), on a local Ray instance or the cluster named by
   ``address`` / ``RAY_ADDRESS``; the optional extra ``pip install "pbicrl[ray]"``.
 
-Local pool workers die with the process that started them (:func:`pbicrl.samplers.driver.die_with_parent`):
+Local pool workers die with the process that started them (:func:`pbicrl.inference.samplers.driver.die_with_parent`):
 a sweep killed with SIGTERM or SIGKILL leaves no task running, and none blocked forever on a pipe to a
 parent that is gone; their temporary directories are removed by the next run.
 """
@@ -78,7 +78,7 @@ class SerialExecutor(Executor):
 
 
 def _init_pool_worker(parent: int | None = None) -> None:
-    from pbicrl.samplers.driver import die_with_parent
+    from pbicrl.inference.samplers.driver import die_with_parent
 
     # A worker whose parent is gone would finish its task, then wait forever for the next one on a pipe
     # that its siblings keep open: end it with the parent instead (the next run cleans its temporaries).
@@ -186,7 +186,7 @@ class LocalExecutor(Executor):
 def _terminate(pool: ProcessPoolExecutor) -> None:
     """Stop a pool now, running tasks included (their temporary directories are cleaned up afterwards):
     SIGTERM, then SIGKILL for a task that handles SIGTERM and does not stop within two seconds."""
-    from pbicrl.samplers.driver import stop_pool
+    from pbicrl.inference.samplers.driver import stop_pool
 
     stop_pool(pool, grace=2.0)
 

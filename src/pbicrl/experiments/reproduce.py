@@ -177,7 +177,7 @@ def _plt() -> Any:
 # --------------------------------------------------------------------------------------------- grid (Fig. 1b)
 def exp_grid(ctx: Context) -> Path:
     """BPL with and without margins on the three grid trajectories, weights averaged over 100 runs."""
-    from pbicrl.data import Dataset
+    from pbicrl.inference.data import Dataset
 
     path = ctx.out / "grid" / "grid.npz"
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -186,7 +186,7 @@ def exp_grid(ctx: Context) -> Path:
 
         ds: Dataset = grid_dataset()
     except ImportError:
-        from pbicrl.data import load_dataset
+        from pbicrl.inference.data import load_dataset
 
         ds = load_dataset(Path(__file__).resolve().parents[1] / "data" / "grid.npz")
     ds.save(path)
@@ -235,8 +235,8 @@ def exp_grid(ctx: Context) -> Path:
 
 # --------------------------------------------------------------------------------------------- navigation
 def _navigation(ctx: Context, name: str, dataset: str) -> Path:
-    from pbicrl.data import load_dataset
-    from pbicrl.margins import relation_error, tune_margins
+    from pbicrl.inference.data import load_dataset
+    from pbicrl.analysis.margins import relation_error, tune_margins
 
     dataset = ctx.dataset(dataset)
     paper = PAPER[name]
@@ -401,7 +401,7 @@ def _wall_configs(ctx: Context, name: str, dataset: str, n: int, seeds: int,
 def _wall_row(rr: list[dict], wall: float) -> dict[str, Any]:
     """CMSE of one model at one size: the MAP location (the paper's convention) and the posterior median of the
     wall given the wall is on (pbicrl's point estimate), with the seeds whose estimate has no wall counted apart."""
-    from pbicrl.metrics import cmse_location
+    from pbicrl.analysis.metrics import cmse_location
 
     def cm(thetas: list[Any]) -> tuple[tuple[float, float], int]:
         errs = [cmse_location(t, wall) for t in thetas if t is not None and math.isfinite(t)]
@@ -692,8 +692,8 @@ def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = Fal
 
 
 def add_subcommands(sub: Any) -> None:
-    from pbicrl._argtypes import DeprecatedFlag
-    from pbicrl._argtypes import positive_int as _positive_int
+    from pbicrl.cli.argtypes import DeprecatedFlag
+    from pbicrl.cli.argtypes import positive_int as _positive_int
 
     p = sub.add_parser("reproduce", help="reproduce the paper's experiments on the shipped demonstrations",
                        description="Run the paper's experiments; writes <out>/<experiment>/report.md, results.json and PNGs.")
@@ -742,7 +742,7 @@ def exp_icl(ctx: Context) -> Path:
 
     from pbicrl.experiments.sweep import run_tasks
     from pbicrl.experiments.tasks import Task, file_sha256
-    from pbicrl.metrics import cmse_grid, cmse_location, halfspace_indicator
+    from pbicrl.analysis.metrics import cmse_grid, cmse_location, halfspace_indicator
 
     # kind "reproduce-icl" (pbicrl.experiments.tasks) hashes the dataset's content, like the PBICRL runs; the
     # checkpoint directory carries that hash too
@@ -811,7 +811,7 @@ def exp_icl(ctx: Context) -> Path:
             return "undefined" if ms is None else _fmt_ms(*ms)
 
         fp = row["icl"]["final_policy"]
-        from pbicrl.data import load_dataset
+        from pbicrl.inference.data import load_dataset
 
         full = load_dataset(dataset)
         reach = [float(full.trajectory_states(i)[:, 0].max()) for i in np.flatnonzero(full.group == 1)]

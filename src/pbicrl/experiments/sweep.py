@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pbicrl._argtypes import positive_int as _positive_int
+from pbicrl.cli.argtypes import positive_int as _positive_int
 from pbicrl._atomic import write_json
 from pbicrl.experiments.tasks import (
     RESULT_FILE,

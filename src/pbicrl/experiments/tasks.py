@@ -587,7 +587,7 @@ INFER_EXTRA: dict[str, Any] = {"demos_per_group": None, "demos_seed": 0}
 
 
 def _resolve_data(data: str) -> Path:
-    from pbicrl.data import DatasetNotFoundError, resolve_dataset_path
+    from pbicrl.inference.data import DatasetNotFoundError, resolve_dataset_path
 
     try:
         return resolve_dataset_path(data)
@@ -680,7 +680,7 @@ def _infer_defaults() -> dict[str, Any]:
 
 def _infer_dataset(config: Mapping[str, Any]) -> tuple[Any, Path, str]:
     """The (subsampled) dataset of an ``infer`` config, its path and content hash (checked against the config)."""
-    from pbicrl.data import load_dataset
+    from pbicrl.inference.data import load_dataset
 
     path = _resolve_data(config["data"])
     digest = file_sha256(path)
@@ -722,7 +722,7 @@ def run_infer(config: dict, out_dir: Path) -> dict[str, Any]:
 
 def summarize_infer(config: dict, out_dir: Path) -> dict[str, Any]:
     """:func:`infer_result` of a finished ``infer`` run read back from its directory (adopting older runs)."""
-    from pbicrl.results import Posterior
+    from pbicrl.inference.results import Posterior
 
     ds, _, _ = _infer_dataset(config)
     return infer_result(Posterior.load(out_dir, issue_warnings=False), ds)
@@ -740,8 +740,8 @@ def infer_result(post: Any, dataset: Any) -> dict[str, Any]:
     """
     import numpy as np
 
-    from pbicrl.draws import SELECTION_THRESHOLD
-    from pbicrl.margins import group_mean_returns, point_weights
+    from pbicrl.inference.draws import SELECTION_THRESHOLD
+    from pbicrl.analysis.margins import group_mean_returns, point_weights
 
     def finite_or_none(x: Any) -> list[float | None]:
         return [None if not np.isfinite(v) else float(v) for v in np.atleast_1d(x)]

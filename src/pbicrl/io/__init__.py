@@ -1,4 +1,4 @@
-"""Import demonstrations into a :class:`pbicrl.data.Dataset`.
+"""Import demonstrations into a :class:`pbicrl.inference.data.Dataset`.
 
 * :func:`read_csv`, :func:`read_parquet`, :func:`read_table` - one row per state with trajectory id, group and
   feature columns; groups are integers (1 = best) or names in a given order (``group_order``). Parquet

@@ -28,7 +28,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbicrl.data import Dataset, DatasetError, _file_kind, _umask, clean_stale_temporaries, temporary_prefix
+from pbicrl.inference.data import Dataset, DatasetError, _file_kind, _umask, clean_stale_temporaries, temporary_prefix
 
 __all__ = ["TableError", "read_csv", "read_parquet", "read_table", "columns_to_dataset", "write_csv", "check_delimiter"]
 

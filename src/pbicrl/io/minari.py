@@ -24,7 +24,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pbicrl.data import Dataset, DatasetError
+from pbicrl.inference.data import Dataset, DatasetError
 
 __all__ = ["from_minari", "load_feature_function"]
 

@@ -3,7 +3,7 @@
 The child (``spawn``: the server's threads are not forked) runs :func:`pbicrl.infer` on the labelled
 trajectories, saves the run next to the labels (``<out stem>.run/``, with the labelled data as
 ``data.npz`` so that ``pbicrl suggest`` and ``pbicrl plot`` find it), draws the figures of ``pbicrl plot``
-when matplotlib is installed, ranks the unlabelled trajectories (:func:`pbicrl.suggest.suggest`) and sends
+when matplotlib is installed, ranks the unlabelled trajectories (:func:`pbicrl.analysis.suggest.suggest`) and sends
 back a summary (:func:`summarise`). Progress comes from the sampler's progress bar, which the child replaces
 with one that reports to the parent (``pbicrl.infer`` has no progress callback of its own).
 """
@@ -103,7 +103,7 @@ def summarise(run: Any, labelled: Any) -> dict[str, Any]:
 
     Rewards are the length-normalised returns :math:`\\bar\\phi_i^\\top (w_n + \\hat e)` of the labelled
     trajectories under the selected-set estimate :math:`\\hat e` (selected features at their conditional
-    posterior medians, :meth:`~pbicrl.results.DrawsView.point_estimate`).
+    posterior medians, :meth:`~pbicrl.inference.results.DrawsView.point_estimate`).
     """
     cond = run.conditional_summary()
     pc = run.p_constraint
@@ -135,10 +135,10 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
         import warnings
 
         from pbicrl import infer
-        from pbicrl.data import load_dataset
+        from pbicrl.inference.data import load_dataset
         from pbicrl.errors import PbicrlWarning
         from pbicrl.runs import load_run
-        from pbicrl.samplers import driver
+        from pbicrl.inference.samplers import driver
 
         warnings.simplefilter("ignore", PbicrlWarning)  # they are in summary.json; the page shows them
         if hasattr(driver, "_progress_bar"):
@@ -161,7 +161,7 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
         if settings.figures:
             q.put(("progress", 1.0, "figures"))
             try:
-                from pbicrl.plots import plot_run
+                from pbicrl.analysis.plots import plot_run
 
                 figures = [p.name for p in plot_run(run, rd / "plots", dataset=labelled)]
             except ImportError as exc:
@@ -169,7 +169,7 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
         result["figures"] = figures
         q.put(("progress", 1.0, "suggesting"))
         try:
-            from pbicrl.suggest import suggest
+            from pbicrl.analysis.suggest import suggest
 
             if np.any((full.group == 0) & ~full.skipped):
                 result["suggestions"] = suggest(run, labelled, full, settings.n_suggest).to_dict()

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.data import Dataset
+from pbicrl.inference.data import Dataset
 
 __all__ = ["KNOWN_ENVS", "normalise_env_id", "scene_for", "trajectory_payload", "thumbnail_payload",
            "MAX_THUMBNAIL_POINTS"]

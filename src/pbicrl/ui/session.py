@@ -3,8 +3,8 @@
 :class:`LabelSession` owns the output file. Every change names the revision it was made on; a change on
 an older revision (another tab made one in between) is a :class:`Conflict`, and so is an output file that
 another program changed since this session last wrote it. The file is the documented dataset ``.npz``
-(:mod:`pbicrl.data`) with group 0 for unlabelled trajectories, written atomically (a temporary, then
-``os.replace``) by :meth:`pbicrl.data.Dataset.save`; an existing output resumes the session.
+(:mod:`pbicrl.inference.data`) with group 0 for unlabelled trajectories, written atomically (a temporary, then
+``os.replace``) by :meth:`pbicrl.inference.data.Dataset.save`; an existing output resumes the session.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.data import MAX_GROUPS, Dataset, DatasetError, list_shipped_datasets, load_dataset, resolve_dataset_path
+from pbicrl.inference.data import MAX_GROUPS, Dataset, DatasetError, list_shipped_datasets, load_dataset, resolve_dataset_path
 
 __all__ = ["LabelSession", "SessionError", "Conflict", "DEFAULT_GROUPS", "MAX_NAME_LENGTH"]
 
@@ -67,7 +67,7 @@ def _same_trajectories(a: Dataset, b: Dataset) -> str | None:
 
 def _guess_env(path: Path) -> str | None:
     """The env id of a shipped dataset (``point_mass.npz`` shipped with pbicrl -> ``point_mass``)."""
-    from pbicrl.data import _shipped_dir
+    from pbicrl.inference.data import _shipped_dir
 
     try:
         if path.resolve().parent == _shipped_dir().resolve() and path.stem in list_shipped_datasets():
@@ -93,7 +93,7 @@ class LabelSession:
 
     Raises
     ------
-    pbicrl.data.DatasetError
+    pbicrl.inference.data.DatasetError
         Unreadable data, no states, an output that is not a dataset or holds other trajectories.
     """
 

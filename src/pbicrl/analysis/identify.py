@@ -1,0 +1,881 @@
+r"""What do the rankings identify? Separation analysis before sampling.
+
+With reward :math:`r(s) = (w_n + c \circ w_p)^\top \phi(s)` the length-normalised return of trajectory
+:math:`\tau_i` is :math:`\bar r_i = \bar\phi_i^\top (w_n + w_p)`, and the margin-respecting Bradley-Terry
+model (paper Eq. 7) gives :math:`P(\tau_i \succ \tau_j) = \sigma(\beta(\bar r_i - \bar r_j) - m_{k\ell})` for
+:math:`\tau_i \in \mathcal{G}_k`, :math:`\tau_j \in \mathcal{G}_\ell`, :math:`k < \ell`. Every quantity below is
+computed with small linear programs over *group extremes*: the :math:`|\mathcal{G}_k|\,|\mathcal{G}_\ell|` pair
+constraints of a block reduce to :math:`\min_{i \in \mathcal{G}_k} \bar r_i - \max_{j \in \mathcal{G}_\ell} \bar r_j`,
+so an LP has the free penalties plus :math:`2K` group bounds as variables and :math:`O(N + K^2)` rows
+(``/work/shared/notes/identifiability.md``, section "Separation").
+
+Definitions
+-----------
+Admissible penalties
+    :math:`w_{p,j} = 0` for features that are not candidates; :math:`w_{p,j} \le 0` for candidates when
+    ``penalty_sign="negative"`` (the default: a constraint is a cost), unrestricted for ``"any"``.
+Separating set :math:`S_\alpha`
+    Admissible :math:`w_p` with :math:`\beta(\min_{\mathcal{G}_k}\bar r - \max_{\mathcal{G}_\ell}\bar r) \ge
+    m_{k\ell} + \operatorname{logit}(1-\alpha)` for all :math:`k < \ell`: every cross-group pair is ordered with
+    probability at least :math:`1-\alpha` under Eq. 7. The rankings are *separable* (at level
+    :math:`\alpha`) when :math:`S_\alpha \neq \emptyset`.
+Separation scale (``min_penalty``)
+    :math:`\min_{w_p \in S_\alpha} |w_{p,j}|`, the other penalties free within their support: the smallest
+    penalty on feature :math:`j` with which the data are explained at level :math:`\alpha`; 0 when feature
+    :math:`j` is not needed, ``None`` when :math:`S_\alpha = \emptyset`. It grows with :math:`1/\beta`, the
+    margins and :math:`\operatorname{logit}(1-\alpha)`. It is **not** a bound on, nor an estimate of, the
+    true penalty: on the shipped point-mass data (simulated with penalties 10 and 100) it is about 56 and 352.
+Unbounded penalty
+    Feature :math:`j` is unbounded in direction :math:`s = \pm 1` when some recession direction
+    :math:`\delta` (admissible sign, :math:`s\,\delta_j > 0`) satisfies
+    :math:`\min_{\mathcal{G}_k} \bar\Phi\delta \ge \max_{\mathcal{G}_\ell} \bar\Phi\delta` for all :math:`k<\ell`
+    and is not flat (:math:`\bar\Phi\delta` not constant). Along :math:`w_p + t\delta` no pair's return
+    difference ever decreases and at least one increases, so the likelihood increases monotonically and
+    saturates as :math:`t \to \infty`: the maximum is at infinity and the posterior there follows the
+    prior. This depends on neither :math:`\alpha`, :math:`\beta` nor the margins (margins only move the
+    separation scale). It is reported whether or not the data are separable. When some admissible
+    direction orders every cross-group pair *strictly*, a small multiple of any other admissible direction can
+    be added to it, so then every candidate is unbounded: what the data say is then in the directions (which
+    penalties must run off together, and how fast) and in the separation scales, not in the magnitudes.
+Not identifiable
+    A candidate whose per-trajectory mean feature is constant (the penalty shifts every return equally and
+    cancels in every comparison), or that is affinely dependent on other candidates (the likelihood is flat
+    along a combination of their penalties). Constant features are left out of the LPs.
+Threshold interval of an axis half-space
+    See :func:`threshold_interval`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from pbicrl.inference.constraints import AxisHalfspace, Constraint, ConstraintSet, constraint_from_dict
+from pbicrl.inference.data import Dataset
+from pbicrl.errors import warn
+from pbicrl.inference.preferences import Margins
+
+__all__ = ["identify", "Identification", "FeatureIdentification", "ParameterInterval", "IdentifyError",
+           "threshold_interval"]
+
+PenaltySign = Literal["negative", "any"]
+
+# A recession direction counts when its normalised improvement t (in units of the standardised feature range)
+# exceeds this; HiGHS solves to ~1e-9 on these well-scaled problems.
+_T_MIN = 1e-6
+# Box on standardised weights so that relaxed (cutting-plane) LPs stay bounded; ends of the separating set are
+# only asked for where the recession LP says they are finite, so the box is never active at the solution.
+_BIG = 1e10
+
+
+class IdentifyError(ValueError):
+    """Invalid argument to :func:`identify`; the message names the offending field."""
+
+
+# ---------------------------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class FeatureIdentification:
+    r"""What the rankings say about the penalty :math:`w_{p,j}` of one known feature.
+
+    Attributes
+    ----------
+    name : str
+        Feature name.
+    candidate : bool
+        Whether the feature may carry a penalty (otherwise :math:`w_{p,j} = 0` and nothing is estimated).
+    identifiable : bool or None
+        ``False`` for a constant or affinely dependent candidate (the likelihood is flat along its penalty);
+        ``None`` for non-candidates; ``True`` otherwise. An unbounded penalty is identifiable from one side
+        only, see ``unbounded``.
+    reason : str
+        Plain-language explanation of the entry.
+    min_penalty : float or None
+        Separation scale :math:`\min_{S_\alpha} |w_{p,j}|` (see the module docstring); ``None`` when the
+        rankings are not separable at level :math:`\alpha` or the feature is not analysed.
+    penalty_range : tuple of float or None
+        ``(low, high)``: the values :math:`w_{p,j}` takes over the separating set :math:`S_\alpha`; an end is
+        infinite where the penalty is unbounded. ``None`` where ``min_penalty`` is.
+    unbounded : bool
+        Whether the likelihood never decreases as :math:`|w_{p,j}| \to \infty` in an admissible direction.
+    direction : {"-inf", "+inf", "both"} or None
+        Which way :math:`w_{p,j}` runs off (``None`` when bounded).
+    recession : tuple of dict
+        One normalised recession direction per way in ``direction``: feature name -> coefficient of
+        :math:`\delta` (raw weight units, largest magnitude 1; only non-zero entries). It shows which
+        penalties must run off together with this one; the sparsest such set is chosen.
+    spread : float
+        Range (max - min) of the per-trajectory mean feature; 0 for a constant feature.
+    """
+
+    name: str
+    candidate: bool
+    identifiable: bool | None
+    reason: str
+    min_penalty: float | None = None
+    penalty_range: tuple[float, float] | None = None
+    unbounded: bool = False
+    direction: Literal["-inf", "+inf", "both"] | None = None
+    recession: tuple[dict[str, float], ...] = ()
+    spread: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready; infinite ends of ``penalty_range`` become ``None``."""
+        return {
+            "min_penalty": self.min_penalty,
+            "unbounded": self.unbounded,
+            "direction": self.direction,
+            "identifiable": self.identifiable,
+            "reason": self.reason,
+            "candidate": self.candidate,
+            "penalty_range": None if self.penalty_range is None else [_finite_or_none(v) for v in self.penalty_range],
+            "recession": [dict(d) for d in self.recession],
+            "spread": self.spread,
+        }
+
+
+@dataclass(frozen=True)
+class ParameterInterval:
+    """Identified interval of one constraint parameter (see :func:`threshold_interval`).
+
+    Attributes
+    ----------
+    name : str
+        ``"<constraint>.<parameter>"`` as in :attr:`pbicrl.inference.constraints.ConstraintSet.param_names`.
+    constraint, family : str
+        Constraint name and family.
+    low, high : float or None
+        Interval ends; both ``None`` when not identified or not computed (see ``reason``).
+    low_closed, high_closed : bool
+        Whether each end belongs to the interval.
+    n_violating : int
+        Trajectories of worse groups that enter the region for every threshold in the interval.
+    n_worse : int
+        Trajectories of worse groups (all but the best group).
+    violating_per_group : dict of int to int
+        ``n_violating`` by group label.
+    reason : str
+        Definition used, or why there is no interval.
+    """
+
+    name: str
+    constraint: str
+    family: str
+    low: float | None
+    high: float | None
+    low_closed: bool = False
+    high_closed: bool = False
+    n_violating: int = 0
+    n_worse: int = 0
+    violating_per_group: dict[int, int] = field(default_factory=dict)
+    reason: str = ""
+
+    @property
+    def interval(self) -> list[float] | None:
+        """``[low, high]`` or ``None``."""
+        return None if self.low is None or self.high is None else [self.low, self.high]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"interval": self.interval, "low_closed": self.low_closed, "high_closed": self.high_closed,
+                "n_violating": self.n_violating, "n_worse": self.n_worse,
+                "violating_per_group": {str(k): v for k, v in self.violating_per_group.items()},
+                "family": self.family, "constraint": self.constraint, "reason": self.reason}
+
+    def text(self) -> str:
+        """``(7.5, 8.2]``-style interval or ``-``."""
+        if self.low is None or self.high is None:
+            return "-"
+        return f"{'[' if self.low_closed else '('}{self.low:.6g}, {self.high:.6g}{']' if self.high_closed else ')'}"
+
+
+@dataclass(frozen=True, eq=False)
+class Identification:
+    r"""Result of :func:`identify`.
+
+    Attributes
+    ----------
+    feature_names : tuple of str, length d
+    features : tuple of FeatureIdentification, length d
+        One entry per known feature, in dataset order.
+    separable : bool
+        Whether :math:`S_\alpha \neq \emptyset` (see the module docstring).
+    alpha, beta : float
+        Level :math:`\alpha` and inverse temperature :math:`\beta` used.
+    margins : ndarray, shape (K, K)
+        Margins :math:`m_{k\ell}` (upper triangle).
+    penalty_sign : {"negative", "any"}
+    nominal_weights : ndarray, shape (d,)
+        :math:`w_n` used.
+    group_labels : tuple of int, length K
+        Group labels, best first.
+    unbounded_directions : tuple of dict
+        Distinct normalised recession directions (feature name -> coefficient), see
+        :attr:`FeatureIdentification.recession`.
+    parameters : tuple of ParameterInterval
+        One per parameter of the parametric constraints (empty without constraints).
+    n_lp : int
+        Linear programs solved (including cutting-plane rounds).
+    runtime_s : float
+    """
+
+    feature_names: tuple[str, ...]
+    features: tuple[FeatureIdentification, ...]
+    separable: bool
+    alpha: float
+    beta: float
+    margins: NDArray[np.float64]
+    penalty_sign: PenaltySign
+    nominal_weights: NDArray[np.float64]
+    group_labels: tuple[int, ...]
+    unbounded_directions: tuple[dict[str, float], ...]
+    parameters: tuple[ParameterInterval, ...] = ()
+    n_lp: int = 0
+    runtime_s: float = 0.0
+
+    def __getitem__(self, name: str) -> FeatureIdentification:
+        """Entry of the feature ``name``."""
+        try:
+            return self.features[self.feature_names.index(name)]
+        except ValueError:
+            raise KeyError(f"no feature {name!r}; features are {list(self.feature_names)}") from None
+
+    @property
+    def min_penalty(self) -> NDArray[np.float64]:
+        """Separation scales, shape (d,), NaN where not defined."""
+        return np.array([np.nan if f.min_penalty is None else f.min_penalty for f in self.features])
+
+    @property
+    def unbounded(self) -> NDArray[np.bool_]:
+        """Unbounded flags, shape (d,)."""
+        return np.array([f.unbounded for f in self.features], dtype=bool)
+
+    @property
+    def logit_level(self) -> float:
+        r""":math:`\operatorname{logit}(1-\alpha)`."""
+        return math.log((1.0 - self.alpha) / self.alpha)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (``summary.json``'s ``identified`` block).
+
+        Features are nested under ``"features"`` so that a feature name can never clash with a top-level
+        key; ``"parameters"`` maps ``"<constraint>.<parameter>"`` to ``[low, high]`` or ``None`` (details,
+        open/closed ends and reasons in ``"parameter_details"``); infinite values are ``None``.
+        """
+        return {
+            "separable": self.separable,
+            "alpha": self.alpha,
+            "beta": self.beta,
+            "logit_level": self.logit_level,
+            "margins": Margins(self.margins).as_dict(),
+            "penalty_sign": self.penalty_sign,
+            "nominal_weights": {n: float(w) for n, w in zip(self.feature_names, self.nominal_weights)},
+            "features": {f.name: f.to_dict() for f in self.features},
+            "unbounded_directions": [dict(d) for d in self.unbounded_directions],
+            "parameters": {p.name: p.interval for p in self.parameters},
+            "parameter_details": {p.name: p.to_dict() for p in self.parameters},
+            "warnings": self.warnings(),
+            "n_lp": self.n_lp,
+            "runtime_s": self.runtime_s,
+        }
+
+    # ------------------------------------------------------------------------------------ messages
+    def warnings(self) -> list[str]:
+        """One message per unbounded penalty and one per non-identifiable candidate."""
+        out = []
+        level = f"{1 - self.alpha:g}"
+        for f in self.features:
+            if f.candidate and f.identifiable is False:
+                out.append(f"{f.name}: not identifiable - {f.reason}. Its posterior reflects only the prior; "
+                           "drop it from the candidates (or keep only one of a dependent set).")
+        for f in self.features:
+            if not f.unbounded:
+                continue
+            toward = {"-inf": "-inf", "+inf": "+inf", "both": "+/-inf"}[f.direction or "-inf"]
+            runs = "; ".join(_direction_text(d) for d in f.recession)
+            head = (f"{f.name}: penalty unbounded by the data - along {runs} (w_p -> {toward}) no pair's probability "
+                    "ever decreases and some increase, so the likelihood's maximum is at infinity.")
+            if f.min_penalty is None:
+                scale = (f" The rankings are not separable at alpha = {self.alpha:g}, so no separation scale exists; "
+                         "beyond the point where the pairs this direction orders saturate, the posterior of the "
+                         "magnitude reflects the prior, not the data.")
+            elif f.min_penalty == 0.0:
+                scale = (f" The rankings are explained without this penalty (separation scale 0 at alpha = "
+                         f"{self.alpha:g}, beta = {self.beta:g}), yet nothing in the data stops it from growing: its "
+                         "posterior magnitude reflects the prior.")
+            else:
+                scale = (f" What the data identify is the separation scale |w_p| >= {f.min_penalty:.4g}: the smallest "
+                         f"penalty with which every cross-group pair is ordered with probability >= {level} "
+                         f"(alpha = {self.alpha:g}, beta = {self.beta:g}) - a scale at which the rankings are "
+                         "explained, not an estimate of the true penalty. Beyond it the posterior reflects the prior "
+                         "(its bounds or scale), not the data.")
+            if f.min_penalty == 0.0:
+                advice = (" Report that the rankings do not require this penalty and that its magnitude is not "
+                          "identified, not its posterior mean or interval. Margins do not fix the scale.")
+            else:
+                advice = (" Report this lower bound and the selected constraint set (P(c=1)), not the posterior mean "
+                          "or interval of the magnitude. Margins move the lower bound only; they do not fix the scale.")
+            out.append(head + scale + advice)
+        return out
+
+    def issue_warnings(self) -> list[str]:
+        """Issue every :meth:`warnings` message as a :class:`pbicrl.errors.PbicrlWarning`; returns them."""
+        msgs = self.warnings()
+        for m in msgs:
+            warn(m, stacklevel=2)
+        return msgs
+
+    def table(self) -> str:
+        """Readable terminal report."""
+        K = len(self.group_labels)
+        m = Margins(self.margins).as_dict()
+        sign = "w_p <= 0" if self.penalty_sign == "negative" else "w_p of any sign"
+        lines = [f"identifiability: {K} groups, beta {self.beta:g}, alpha {self.alpha:g} "
+                 f"(logit(1-alpha) = {self.logit_level:.4g}), margins "
+                 + " ".join(f"{k}={v:g}" for k, v in m.items()) + f", {sign}"]
+        if self.separable:
+            lines.append(f"separable: yes - some admissible penalty vector orders every cross-group pair with "
+                         f"probability >= {1 - self.alpha:g}; unbounded penalties are identified only up to that scale")
+        else:
+            lines.append(f"separable: no - no admissible penalty vector orders every cross-group pair with probability "
+                         f">= {1 - self.alpha:g}; the likelihood itself fixes the scale of bounded penalties")
+        w = max(8, max(len(n) for n in self.feature_names))
+        head = (f"{'feature':<{w}}  {'cand':>4}  {'ident':>5}  {'min |w_p|':>10}  {'w_p range over S_alpha':>26}  "
+                f"{'unbounded':>9}")
+        lines += ["", head, "-" * len(head)]
+        for f in self.features:
+            ident = "-" if f.identifiable is None else ("yes" if f.identifiable else "NO")
+            mp = "-" if f.min_penalty is None else f"{f.min_penalty:.4g}"
+            rng = "-" if f.penalty_range is None else f"[{f.penalty_range[0]:.4g}, {f.penalty_range[1]:.4g}]"
+            unb = f.direction if f.unbounded else "no"
+            cand = "yes" if f.candidate else "no"
+            lines.append(f"{f.name:<{w}}  {cand:>4}  {ident:>5}  {mp:>10}  {rng:>26}  {unb:>9}")
+            if f.identifiable is False:
+                lines.append(f"{'':<{w}}    {f.reason}")
+        if self.unbounded_directions:
+            lines += ["", "directions along which the likelihood never decreases (w_p + t*delta, t -> inf):"]
+            lines += [f"  {i + 1}. {_direction_text(d)}" for i, d in enumerate(self.unbounded_directions)]
+        if self.parameters:
+            pw = max(10, max(len(p.name) for p in self.parameters))
+            lines += ["", f"{'parameter':<{pw}}  {'identified interval':>24}  note"]
+            for p in self.parameters:
+                note = (f"{p.n_violating} of {p.n_worse} worse trajectories cross" if p.low is not None else p.reason)
+                lines.append(f"{p.name:<{pw}}  {p.text():>24}  {note}")
+        for msg in self.warnings():
+            lines.append(f"warning: {msg}")
+        return "\n".join(lines)
+
+
+def _direction_text(d: Mapping[str, float]) -> str:
+    return ", ".join(f"{n} {v:+.3g}" for n, v in d.items())
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+# ---------------------------------------------------------------------------------------------- LPs
+class _GroupLP:
+    r"""Cutting-plane LPs over group extremes.
+
+    Variables ``z = [w (p), u (K), v (K), t, a (p)]``: standardised penalties (or a recession direction),
+    lower bounds :math:`u_k \le \min_{\mathcal{G}_k}` and upper bounds :math:`v_k \ge \max_{\mathcal{G}_k}` of the
+    returns, a free scalar ``t`` and auxiliaries ``a`` (for absolute values). Rows are
+    :math:`u_k \le c_i + X_i w` and :math:`v_k \ge c_i + X_i w` for trajectories in a working set, plus
+    :math:`u_k - v_\ell \ge g_{k\ell}` for :math:`k < \ell`. Only a few trajectories per group are extreme at the
+    optimum, so the working set starts from per-group extremes and grows by the extremes of the current
+    solution until the solution is feasible for all ``N`` trajectories; that makes it the optimum of the full LP
+    (the relaxation is a superset of the full feasible set) and the LP stays tiny for any ``N``.
+    """
+
+    def __init__(self, X: NDArray[np.float64], c: NDArray[np.float64], starts: NDArray[np.int64],
+                 gaps: NDArray[np.float64]) -> None:
+        self.X, self.c, self.starts, self.gaps = X, c, starts, gaps
+        self.N, self.p = X.shape
+        self.K = starts.size - 1
+        self.n_var = 2 * self.p + 2 * self.K + 1
+        self.n_lp = 0
+        self.pairs = [(k, l) for k in range(self.K) for l in range(k + 1, self.K)]
+        self.in_work = np.zeros(self.N, dtype=bool)
+        self.work: list[int] = []
+        self.group_of = np.repeat(np.arange(self.K), np.diff(starts))
+        # Seed: each group's extremes of the nominal returns and of every standardised feature (both signs).
+        probes = [(1.0, np.zeros(self.p))] + [(0.0, s * e) for e in np.eye(self.p) for s in (1.0, -1.0)]
+        probes += [(1.0, s * e) for e in np.eye(self.p) for s in (1.0, -1.0)]
+        for a, w in probes:
+            self._add_extremes(a * c + X @ w)
+
+    # -- working set
+    def _add_extremes(self, r: NDArray[np.float64]) -> int:
+        added = 0
+        for k in range(self.K):
+            s, e = self.starts[k], self.starts[k + 1]
+            seg = r[s:e]
+            for i in (s + int(np.argmin(seg)), s + int(np.argmax(seg))):
+                if not self.in_work[i]:
+                    self.in_work[i] = True
+                    self.work.append(i)
+                    added += 1
+        return added
+
+    def _rows(self, homogeneous: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        idx = np.asarray(self.work, dtype=np.int64)
+        g = self.group_of[idx]
+        n, p, K = idx.size, self.p, self.K
+        A = np.zeros((2 * n + len(self.pairs), self.n_var))
+        b = np.zeros(A.shape[0])
+        ci = np.zeros(n) if homogeneous else self.c[idx]
+        r = np.arange(n)
+        A[:n, :p] = -self.X[idx]
+        A[r, p + g] = 1.0                      # u_k - X_i w <= c_i
+        b[:n] = ci
+        A[n:2 * n, :p] = self.X[idx]
+        A[n + r, p + K + g] = -1.0             # X_i w - v_k <= -c_i
+        b[n:2 * n] = -ci
+        for q, (k, l) in enumerate(self.pairs):
+            A[2 * n + q, p + k] = -1.0         # v_l - u_k <= -g_kl
+            A[2 * n + q, p + K + l] = 1.0
+            b[2 * n + q] = 0.0 if homogeneous else -self.gaps[k, l]
+        return A, b
+
+    def _violated(self, w: NDArray[np.float64], homogeneous: bool, tol: float) -> bool:
+        r = self.X @ w if homogeneous else self.c + self.X @ w
+        lo = np.minimum.reduceat(r, self.starts[:-1])
+        hi = np.maximum.reduceat(r, self.starts[:-1])
+        bad = any(lo[k] - hi[l] < (0.0 if homogeneous else self.gaps[k, l]) - tol for k, l in self.pairs)
+        if bad and self._add_extremes(r) == 0:
+            return False  # the extremes are already rows: the residual violation is solver tolerance
+        return bad
+
+    # -- solve
+    def solve(self, objective: NDArray[np.float64], bounds: list[tuple[float | None, float | None]], *,
+              homogeneous: bool, extra_A: NDArray[np.float64] | None = None,
+              extra_b: NDArray[np.float64] | None = None) -> NDArray[np.float64] | None:
+        """Minimise ``objective @ z``; ``None`` if infeasible. ``bounds`` cover all ``n_var`` variables."""
+        from scipy.optimize import linprog
+
+        while True:
+            A, b = self._rows(homogeneous)
+            if extra_A is not None:
+                A = np.vstack([A, extra_A])
+                b = np.concatenate([b, extra_b])
+            res = linprog(objective, A_ub=A, b_ub=b, bounds=bounds, method="highs")
+            self.n_lp += 1
+            if res.status == 2:
+                return None  # a relaxation is infeasible, hence the full problem too
+            if res.status != 0:
+                raise RuntimeError(f"identify: LP solver failed ({res.message})")
+            w = res.x[:self.p]
+            scale = 1.0 + float(np.max(np.abs(w), initial=0.0)) * float(np.max(np.abs(self.X), initial=0.0))
+            if not homogeneous:
+                scale += float(np.max(np.abs(self.c), initial=0.0)) + float(np.max(np.abs(self.gaps), initial=0.0))
+            if not self._violated(w, homogeneous, 1e-7 * scale):
+                return res.x
+
+
+# ---------------------------------------------------------------------------------------------- inputs
+def _resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None,
+                        cset: ConstraintSet | None) -> tuple[int, ...]:
+    """Indices of the known features that may carry a penalty (constraint names are accepted and skipped)."""
+    d = dataset.n_features
+    names = list(dataset.feature_names) + (list(cset.names) if cset is not None else [])
+    if candidates is None:
+        # As pbicrl.infer: with parametric constraints only those are candidates (paper Algorithm 2).
+        return () if cset is not None else tuple(range(d))
+    if isinstance(candidates, (str, bytes)) or not isinstance(candidates, Sequence):
+        raise IdentifyError(f"candidates: expected a list of feature names or indices, got {candidates!r}")
+    out: list[int] = []
+    for c in candidates:
+        if isinstance(c, (int, np.integer)) and not isinstance(c, (bool, np.bool_)):
+            j = int(c)
+        elif isinstance(c, str) and c.isdigit():
+            j = int(c)
+        elif isinstance(c, str):
+            if c not in names:
+                raise IdentifyError(f"candidates: unknown feature '{c}'; features are {names}")
+            j = names.index(c)
+        else:
+            raise IdentifyError(f"candidates: expected feature names or indices, got {c!r}")
+        if not 0 <= j < len(names):
+            raise IdentifyError(f"candidates: index {j} out of range [0, {len(names)})")
+        if j in out:
+            raise IdentifyError(f"candidates: '{names[j]}' listed twice")
+        out.append(j)
+    if not out:
+        raise IdentifyError("candidates: empty; name at least one feature that may be a constraint")
+    return tuple(j for j in out if j < d)
+
+
+def _constraint_set(dataset: Dataset, constraints: Any) -> ConstraintSet | None:
+    if constraints is None:
+        return None
+    if isinstance(constraints, ConstraintSet):
+        if constraints.dataset is not dataset and (
+                constraints.dataset.n_trajectories != dataset.n_trajectories
+                or constraints.dataset.states is None or dataset.states is None
+                or constraints.dataset.states.shape != dataset.states.shape
+                or not np.array_equal(constraints.dataset.offsets, dataset.offsets)):
+            raise IdentifyError("constraints: the ConstraintSet is bound to a different dataset")
+        return constraints
+    if isinstance(constraints, (Constraint, dict)):
+        constraints = [constraints]
+    if not isinstance(constraints, Sequence) or isinstance(constraints, (str, bytes)):
+        raise IdentifyError("constraints: expected a ConstraintSet or a list of constraints, got "
+                            f"{type(constraints).__name__}")
+    if len(constraints) == 0:
+        return None
+    items = []
+    for c in constraints:
+        if isinstance(c, Constraint):
+            items.append(c)
+        elif isinstance(c, dict):
+            items.append(constraint_from_dict(c))
+        else:
+            raise IdentifyError(f"constraints: expected Constraint objects or dicts, got {type(c).__name__}")
+    return ConstraintSet(tuple(items), dataset)
+
+
+def _check_scalar(name: str, value: Any, lo: float, hi: float, *, lo_open: bool, hi_open: bool) -> float:
+    if isinstance(value, (bool, np.bool_)):
+        raise IdentifyError(f"{name}: expected a number, got {value!r}")
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise IdentifyError(f"{name}: expected a number, got {value!r}") from None
+    ok = math.isfinite(x) and (x > lo if lo_open else x >= lo) and (x < hi if hi_open else x <= hi)
+    if not ok:
+        span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        raise IdentifyError(f"{name}: must lie in {span}, got {value!r}")
+    return x
+
+
+# ---------------------------------------------------------------------------------------------- thresholds
+def threshold_interval(dataset: Dataset, constraint: AxisHalfspace, *, name: str | None = None,
+                       prior_bounds: tuple[float, float] | None = None) -> ParameterInterval:
+    r"""Threshold interval of an axis half-space identified by the ranking.
+
+    Let :math:`x` be the constrained state coordinate, :math:`\mathcal{G}_1` the best group and :math:`W` the
+    trajectories of all worse groups. The best group is taken not to enter the region and worse trajectories
+    that enter it are explained by it:
+
+    * ``">="`` (region :math:`x \ge \vartheta`, a wall crossed by going *up*): :math:`\mathcal{G}_1` stays out
+      iff :math:`\vartheta > a = \max_{s \in \mathcal{G}_1} x(s)`, the furthest coordinate it reaches. The violating
+      trajectories :math:`V` are those of :math:`W` that reach beyond :math:`a`; each enters the region iff
+      :math:`\vartheta \le \max_{s\in\tau} x(s)`, so all of them do iff :math:`\vartheta \le b =
+      \min_{\tau \in V} \max_{s \in \tau} x(s)` (the nearest violating reach). Interval :math:`(a, b]`.
+    * ``"<="`` (region :math:`x \le \vartheta`): mirrored, :math:`b = \min_{s \in \mathcal{G}_1} x(s)`,
+      :math:`V` the worse trajectories going below :math:`b`, :math:`a = \max_{\tau \in V} \min_{s \in \tau}
+      x(s)`. Interval :math:`[a, b)`.
+
+    Within the interval the best group never violates and every trajectory of :math:`V` does; outside it
+    either a best-group state is inside the region or a violating trajectory no longer touches it. Worse
+    trajectories not in :math:`V` (``n_worse - n_violating``) are not explained by this constraint at any
+    threshold that keeps the best group out. When :math:`V` is empty there is no interval.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Must have ``states``.
+    constraint : AxisHalfspace
+    name : str, optional
+        Parameter name (default ``"<constraint>.threshold"``).
+    prior_bounds : (low, high), optional
+        The sampler's uniform bounds on the threshold; a note is added when the interval misses them.
+
+    Returns
+    -------
+    ParameterInterval
+    """
+    pname = name or f"{constraint.name}.threshold"
+    if dataset.states is None:
+        raise IdentifyError("constraints: the dataset has no states; parametric constraints are defined on states")
+    x = dataset.states[:, constraint.dims[0]]
+    starts = dataset.offsets[:-1]
+    best = dataset.group == dataset.group_labels[0]
+    worse = ~best
+    ge = constraint.direction == ">="
+    # Per-trajectory reach towards the region: the max coordinate for ">=", the min for "<=".
+    reach = np.maximum.reduceat(x, starts) if ge else np.minimum.reduceat(x, starts)
+    frontier = float(reach[best].max()) if ge else float(reach[best].min())
+    viol = worse & ((reach > frontier) if ge else (reach < frontier))
+    per_group = {int(k): int(np.sum(viol & (dataset.group == k))) for k in dataset.group_labels[1:]}
+    common = dict(name=pname, constraint=constraint.name, family=constraint.family,
+                  n_violating=int(viol.sum()), n_worse=int(worse.sum()), violating_per_group=per_group)
+    side = "beyond" if ge else "below"
+    if not viol.any():
+        return ParameterInterval(low=None, high=None, reason=(
+            f"no trajectory of a worse group reaches {side} the best group's furthest coordinate "
+            f"x[{constraint.dims[0]}] = {frontier:.6g}; the ranking does not place this constraint"), **common)
+    if ge:
+        low, high, lc, hc = frontier, float(reach[viol].min()), False, True
+        why = (f"threshold > {low:.6g} keeps every best-group state out of x >= threshold; threshold <= {high:.6g} "
+               "puts at least one state of every violating worse trajectory in")
+    else:
+        low, high, lc, hc = float(reach[viol].max()), frontier, True, False
+        why = (f"threshold < {high:.6g} keeps every best-group state out of x <= threshold; threshold >= {low:.6g} "
+               "puts at least one state of every violating worse trajectory in")
+    unexplained = int(worse.sum() - viol.sum())
+    if unexplained:
+        why += f"; {unexplained} worse trajectories never cross the best group's frontier (not explained by it)"
+    if prior_bounds is not None and (high < prior_bounds[0] or low > prior_bounds[1]):
+        why += f"; NOTE the interval lies outside the prior bounds [{prior_bounds[0]:g}, {prior_bounds[1]:g}]"
+    return ParameterInterval(low=low, high=high, low_closed=lc, high_closed=hc, reason=why, **common)
+
+
+# ---------------------------------------------------------------------------------------------- main
+def identify(
+    dataset: Dataset,
+    *,
+    nominal_weights: ArrayLike | None = None,
+    beta: float = 1.0,
+    margins: Margins | ArrayLike | None = None,
+    alpha: float = 0.05,
+    candidates: Sequence[str | int] | None = None,
+    penalty_sign: PenaltySign = "negative",
+    constraints: ConstraintSet | Sequence[Constraint | dict] | None = None,
+) -> Identification:
+    r"""Identifiability analysis of a ranked dataset, before sampling.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Ranked demonstrations; the mean features :math:`\bar\Phi` (N, d) and groups are used.
+    nominal_weights : array-like, shape (d,), optional
+        Known :math:`w_n`; default: the dataset's, else zeros (as :func:`pbicrl.infer`).
+    beta : float
+        Inverse temperature :math:`\beta > 0`.
+    margins : Margins, K-1 gaps or K x K matrix, optional
+        :math:`m_{k\ell}` (default 0), parsed by :meth:`pbicrl.inference.preferences.Margins.parse`.
+    alpha : float
+        Level in (0, 0.5]: every cross-group pair must be ordered with probability :math:`\ge 1-\alpha`.
+        The separation scales depend on it (through :math:`\operatorname{logit}(1-\alpha)`); unboundedness
+        does not.
+    candidates : feature names or indices, optional
+        Features that may carry a penalty; the others have :math:`w_p = 0`. Default as :func:`pbicrl.infer`:
+        all known features, or none of them when parametric ``constraints`` are given (Algorithm 2).
+        Names of parametric constraints are accepted (they do not enter the LPs).
+    penalty_sign : {"negative", "any"}
+        ``"negative"``: :math:`w_p \le 0` (constraints cost reward); ``"any"``: unrestricted.
+    constraints : ConstraintSet or list of Constraint (or dicts), optional
+        Parametric constraints; axis half-spaces get a threshold interval (:func:`threshold_interval`), other
+        families an entry without interval and with a reason. Their penalties are not part of the LPs (their
+        features depend on the unknown location).
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    IdentifyError, PreferenceError, ConstraintError
+        With a message naming the offending argument.
+
+    Notes
+    -----
+    Cost: a handful of LPs per candidate (feasibility, the two ends of :math:`w_{p,j}` over :math:`S_\alpha`,
+    one recession LP per admissible sign and one for the sparsest direction), each over
+    ``p + 2K + 1 (+ p)`` variables and the rows of a small working set of extreme trajectories (cutting
+    planes, exact at termination); every round checks all ``N`` trajectories in :math:`O(Np)`.
+    """
+    t0 = time.perf_counter()
+    if not isinstance(dataset, Dataset):
+        raise IdentifyError(f"dataset: expected a pbicrl.inference.data.Dataset, got {type(dataset).__name__}")
+    if penalty_sign not in ("negative", "any"):
+        raise IdentifyError(f"penalty_sign: expected 'negative' or 'any', got {penalty_sign!r}")
+    beta = _check_scalar("beta", beta, 0.0, math.inf, lo_open=True, hi_open=True)
+    alpha = _check_scalar("alpha", alpha, 0.0, 0.5, lo_open=True, hi_open=False)
+    d = dataset.n_features
+    names = dataset.feature_names
+    if nominal_weights is None:
+        wn = dataset.nominal_weights if dataset.nominal_weights is not None else np.zeros(d)
+    else:
+        try:
+            wn = np.asarray(nominal_weights, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise IdentifyError("nominal_weights: values must be numeric") from None
+        if wn.shape != (d,):
+            raise IdentifyError(f"nominal_weights: expected {d} values (one per feature), got {wn.size}")
+        if not np.all(np.isfinite(wn)):
+            raise IdentifyError("nominal_weights: contains NaN or inf")
+    labels = dataset.group_labels
+    K = labels.size
+    mar = Margins.parse(margins, K)
+    cset = _constraint_set(dataset, constraints)
+    cand = _resolve_candidates(dataset, candidates, cset)
+
+    F = dataset.mean_features
+    spread = F.max(axis=0) - F.min(axis=0)
+    # Means of a per-state constant differ by an ulp between lengths, hence the relative tolerance.
+    constant = spread <= 1e-10 * np.maximum(1.0, np.abs(F).max(axis=0))
+    free = [j for j in cand if not constant[j]]
+    p = len(free)
+
+    # Sort trajectories by group rank so per-group extremes are contiguous reductions.
+    rank = np.searchsorted(labels, dataset.group)
+    order = np.argsort(rank, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(np.bincount(rank, minlength=K))]).astype(np.int64)
+    s = spread[free] if p else np.zeros(0)
+    # Standardise the free features to unit range (and centre them; constants cancel in every comparison) so
+    # one tolerance fits all features; weights map back by w_j = w~_j / spread_j.
+    X = (F[order][:, free] - F[:, free].mean(axis=0)) / s if p else np.zeros((F.shape[0], 0))
+    X = np.ascontiguousarray(X)
+    c = F[order] @ wn
+    L = math.log((1.0 - alpha) / alpha)
+    gaps = (mar.matrix + L) / beta
+    lp = _GroupLP(X, c, starts, gaps)
+    nv, it, ia = lp.n_var, p + 2 * K, p + 2 * K + 1
+    neg = penalty_sign == "negative"
+
+    free_uv: list[tuple[float | None, float | None]] = [(None, None)] * (2 * K)  # group bounds u, v
+
+    def w_bounds() -> list[tuple[float | None, float | None]]:
+        b: list[tuple[float | None, float | None]] = [(-_BIG, 0.0 if neg else _BIG)] * p
+        return b + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
+
+    # ---- flat directions (affine dependence among free candidates): the likelihood is constant along them
+    flat_groups: dict[int, list[int]] = {}
+    if p:
+        # X and its triangular factor R have the same singular values and right vectors; R is p x p, so the
+        # SVD costs nothing and the QR is one O(N p^2) pass without forming Q.
+        R = np.linalg.qr(X, mode="r") if X.shape[0] >= p else np.vstack([X, np.zeros((p - X.shape[0], p))])
+        _, sv, vt = np.linalg.svd(R)
+        tol = sv.max() * max(X.shape) * np.finfo(float).eps
+        Z = vt[sv <= tol].T
+        if Z.size:
+            P = Z @ Z.T
+            linked = np.abs(P) > 1e-8
+            for a in range(p):
+                if linked[a, a]:
+                    flat_groups[free[a]] = [free[b] for b in range(p) if linked[a, b]]
+
+    # ---- recession analysis (independent of alpha, beta, margins)
+    gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
+    recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
+    for a, j in enumerate(free):
+        for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
+            # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
+            obj = np.zeros(nv)
+            obj[it] = -1.0
+            bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 1.0)] + [(0.0, 0.0)] * p
+            extra = np.zeros((2, nv))
+            extra[0, a], extra[0, it] = -sgn, 1.0     # t - sgn*delta_j <= 0
+            extra[1, :p], extra[1, it] = -gbar, 1.0   # t - gbar@delta <= 0 (strict improvement, not flat)
+            x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2))
+            if x is None or x[it] <= _T_MIN:
+                continue
+            # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others.
+            d0 = x[:p] / abs(x[a])
+            eps = 0.5 * float(gbar @ d0)
+            obj = np.zeros(nv)
+            obj[ia:ia + p] = 1.0
+            obj[ia + a] = 0.0
+            bnd = [((None, 0.0) if neg else (None, None))] * p + free_uv + [(0.0, 0.0)] + [(0.0, None)] * p
+            bnd[a] = (sgn, sgn)
+            rows = [np.zeros(nv)]
+            rows[0][:p] = -gbar                       # gbar@delta >= eps
+            rhs = [-eps]
+            for b_ in range(p):
+                for sg in (1.0, -1.0):                # a_b >= +-delta_b
+                    r = np.zeros(nv)
+                    r[b_], r[ia + b_] = sg, -1.0
+                    rows.append(r)
+                    rhs.append(0.0)
+            y = lp.solve(obj, bnd, homogeneous=True, extra_A=np.array(rows), extra_b=np.array(rhs))
+            delta = (y[:p] if y is not None else d0) / s
+            recess[j][int(sgn)] = delta / np.abs(delta).max()
+
+    # ---- separating set S_alpha and the separation scales
+    zero = np.zeros(nv)
+    separable = lp.solve(zero, w_bounds(), homogeneous=False) is not None
+    rng: dict[int, tuple[float, float]] = {}
+    if separable:
+        for a, j in enumerate(free):
+            ends = []
+            for sgn in (-1.0, 1.0):  # sgn=-1: lowest w_j, sgn=+1: highest
+                if int(sgn) in recess[j]:
+                    ends.append(sgn * math.inf)  # a recession direction: that end is at infinity
+                    continue
+                obj = np.zeros(nv)
+                obj[a] = -sgn
+                x = lp.solve(obj, w_bounds(), homogeneous=False)
+                if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
+                    raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+                ends.append(sgn * math.inf if abs(x[a]) >= 0.5 * _BIG else float(x[a]) / s[a])
+            rng[j] = (ends[0], ends[1])
+
+    # ---- assemble per-feature entries
+    feats = []
+    for j, n in enumerate(names):
+        if j not in cand:
+            feats.append(FeatureIdentification(n, False, None, "not a candidate: w_p fixed at 0",
+                                               spread=float(spread[j])))
+            continue
+        if constant[j]:
+            col = F[:, j]
+            why = ("all zeros: the feature never fires in the data" if not np.any(col)
+                   else f"constant: every trajectory has mean feature {float(col[0]):.6g}, so its penalty shifts all "
+                        "returns equally and cancels in every comparison")
+            feats.append(FeatureIdentification(n, True, False, why + " (left out of the separation analysis)",
+                                               spread=float(spread[j])))
+            continue
+        ident = j not in flat_groups
+        lo_hi = rng.get(j)
+        mp: float | None = None
+        if lo_hi is not None:
+            lo, hi = lo_hi
+            if neg:
+                hi = min(hi, 0.0)
+                lo_hi = (lo, hi)
+            mp = 0.0 if lo <= 0.0 <= hi else float(min(abs(lo), abs(hi)))
+            if mp * spread[j] < 1e-8:  # below the LP tolerance (standardised units): not needed
+                mp = 0.0
+        ways = sorted(recess[j])
+        direction = None if not ways else ("both" if len(ways) == 2 else ("-inf" if ways[0] < 0 else "+inf"))
+        rec = tuple(_named(recess[j][w], free, names) for w in ways)
+        if not ident:
+            partners = [names[i] for i in flat_groups[j] if i != j]
+            reason = (f"affinely dependent on {', '.join(partners)}: a combination of these penalties leaves every "
+                      "return difference unchanged, so only combinations are identified")
+        elif direction:
+            others = ", ".join(k for k in rec[0] if k != n)
+            reason = (f"unbounded ({direction})" + (f" together with {others}" if others else " on its own")
+                      + (f"; separation scale {mp:.4g}" if mp is not None else "; not separable at this alpha"))
+        elif mp is not None:
+            reason = f"bounded by the data; separation scale {mp:.4g}"
+        else:
+            reason = "bounded by the data (not separable at this alpha: the likelihood fixes the scale)"
+        feats.append(FeatureIdentification(n, True, ident, reason, min_penalty=mp, penalty_range=lo_hi,
+                                           unbounded=bool(ways), direction=direction, recession=rec,
+                                           spread=float(spread[j])))
+
+    seen: dict[tuple[tuple[str, float], ...], dict[str, float]] = {}
+    for f in feats:
+        for dvec in f.recession:
+            seen.setdefault(tuple((k, round(v, 6)) for k, v in dvec.items()), dvec)
+
+    params: list[ParameterInterval] = []
+    if cset is not None:
+        for m, con in enumerate(cset.constraints):
+            pb = cset.bounds[cset.param_offsets[m]:cset.param_offsets[m + 1]]
+            if isinstance(con, AxisHalfspace):
+                params.append(threshold_interval(dataset, con, prior_bounds=(float(pb[0, 0]), float(pb[0, 1]))))
+            else:
+                for pn in con.param_names():
+                    params.append(ParameterInterval(
+                        name=f"{con.name}.{pn}", constraint=con.name, family=con.family, low=None, high=None,
+                        reason=(f"{con.family}: the parameters consistent with the ranking form a joint region, not "
+                                "an interval per parameter; only axis half-spaces get an identified interval")))
+
+    return Identification(
+        feature_names=names, features=tuple(feats), separable=separable, alpha=alpha, beta=beta,
+        margins=mar.matrix.copy(), penalty_sign=penalty_sign, nominal_weights=np.asarray(wn, dtype=np.float64).copy(),
+        group_labels=tuple(int(k) for k in labels), unbounded_directions=tuple(seen.values()),
+        parameters=tuple(params), n_lp=lp.n_lp, runtime_s=time.perf_counter() - t0)
+
+
+def _named(delta: NDArray[np.float64], free: Sequence[int], names: Sequence[str]) -> dict[str, float]:
+    """Non-zero entries of a direction over the free features, by name."""
+    return {names[j]: float(v) for j, v in zip(free, delta) if abs(v) > 1e-9}

@@ -1,0 +1,5 @@
+"""``python -m pbicrl.cli ...`` is ``pbicrl ...``."""
+
+from pbicrl.cli.app import main
+
+raise SystemExit(main())

@@ -1,0 +1,198 @@
+r"""Draws of a reversible-jump chain and the views every holder of them shares.
+
+:class:`DrawsView` is the mixin of :class:`pbicrl.inference.results.Posterior` (a fresh or loaded posterior) and
+:class:`pbicrl.runs.RunRecord` (the checked reader of a run directory): the probability of each constraint
+:math:`P(c_j = 1 \mid \mathcal{D})`, the selected (median-probability) set, the most frequent set, summaries of
+:math:`w_{p,j}` and :math:`\vartheta` given the constraint is on, and point estimates. It needs only the
+arrays, so diagnostics, export and plots accept either holder.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["DrawsView", "SELECTION_THRESHOLD", "ESTIMATORS", "LEVEL"]
+
+SELECTION_THRESHOLD = 0.5
+""":math:`P(c_j = 1) >` this selects feature :math:`j` (median-probability model, Barbieri & Berger 2004)."""
+ESTIMATORS = ("selected", "map", "mean")
+"""Point estimates :meth:`DrawsView.point_estimate` offers (``selected`` is the default everywhere)."""
+LEVEL = 0.9
+"""Mass of the equal-tailed intervals reported by default (90%)."""
+
+
+class DrawsView:
+    r"""Views shared by every holder of draws (:class:`pbicrl.inference.results.Posterior`, :class:`pbicrl.runs.RunRecord`).
+
+    Needs ``indicators`` and ``penalty_weights`` (chains, draws, d), ``feature_names`` and
+    ``map_indicators``, ``map_penalty_weights`` (d,); uses ``parameters`` (chains, draws, P),
+    ``parameter_names``, ``parameter_owner`` and ``map_parameters`` when present.
+    """
+
+    indicators: NDArray[np.int8]
+    penalty_weights: NDArray[np.float64]
+    feature_names: tuple[str, ...]
+    map_indicators: NDArray[np.int8]
+    map_penalty_weights: NDArray[np.float64]
+
+    @property
+    def n_chains(self) -> int:
+        return int(self.indicators.shape[0])
+
+    @property
+    def n_draws(self) -> int:
+        return int(self.indicators.shape[1])
+
+    @property
+    def n_features(self) -> int:
+        return int(self.indicators.shape[2])
+
+    @property
+    def effective_penalty(self) -> NDArray[np.float64]:
+        """Draws of :math:`c \\circ w_p`, (chains, draws, d)."""
+        return self.indicators * self.penalty_weights
+
+    @property
+    def map_effective_penalty(self) -> NDArray[np.float64]:
+        """:math:`c \\circ w_p` of the highest-density visited draw (see :data:`pbicrl.inference.results.MAP_DEFINITION`)."""
+        return self.map_indicators * self.map_penalty_weights
+
+    @property
+    def p_constraint(self) -> NDArray[np.float64]:
+        """:math:`P(c_j = 1 \\mid \\mathcal{D})`, (d,)."""
+        return self.indicators.reshape(-1, self.n_features).mean(axis=0)
+
+    # ------------------------------------------------------------------ selection
+    def selected(self) -> list[str]:
+        """Names of the features with :math:`P(c_j = 1 \\mid \\mathcal{D}) > 0.5`, in feature order.
+
+        The median-probability set (Barbieri & Berger 2004). Unlike the highest-density draw it does not
+        compare densities of different dimensions.
+        """
+        on = self.p_constraint > SELECTION_THRESHOLD
+        return [n for n, s in zip(self.feature_names, on) if s]
+
+    def most_frequent_set(self) -> dict[str, Any]:
+        """The set of active features visited most often over all kept draws of all chains.
+
+        Returns
+        -------
+        dict
+            ``{"features": [names], "frequency": fraction of kept draws}``. Ties go to the smaller set, then
+            to the indicator vector that is smallest read in feature order (deterministic).
+        """
+        rows = np.asarray(self.indicators, dtype=np.int8).reshape(-1, self.n_features)
+        if rows.shape[0] == 0:
+            return {"features": [], "frequency": None}
+        sets, counts = np.unique(rows, axis=0, return_counts=True)
+        best = min(range(len(sets)), key=lambda k: (-int(counts[k]), int(sets[k].sum()), tuple(sets[k].tolist())))
+        return {"features": [n for n, on in zip(self.feature_names, sets[best]) if on],
+                "frequency": float(counts[best] / rows.shape[0])}
+
+    # ------------------------------------------------------------------ conditional on c_j = 1
+    def conditional_summary(self, level: float = LEVEL) -> dict[str, NDArray[np.float64]]:
+        r"""Summaries of :math:`w_{p,j}` over the draws with :math:`c_j = 1`.
+
+        Parameters
+        ----------
+        level : float
+            Mass of the equal-tailed interval.
+
+        Returns
+        -------
+        dict
+            ``mean``, ``median``, ``low``, ``high`` (d,) float, NaN where :math:`c_j` is never 1;
+            ``active_draws`` (d,) int.
+        """
+        d = self.n_features
+        w = np.asarray(self.penalty_weights, dtype=np.float64).reshape(-1, d)
+        c = np.asarray(self.indicators).reshape(-1, d).astype(bool)
+        q = (1.0 - level) / 2.0
+        out = {k: np.full(d, np.nan) for k in ("mean", "median", "low", "high")}
+        n = np.zeros(d, dtype=np.int64)
+        for j in range(d):
+            x = w[c[:, j], j]
+            x = x[np.isfinite(x)]
+            n[j] = x.size
+            if x.size:
+                out["mean"][j] = x.mean()
+                out["median"][j] = np.median(x)
+                out["low"][j], out["high"][j] = np.quantile(x, [q, 1.0 - q])
+        out["active_draws"] = n
+        return out
+
+    def conditional_median(self) -> NDArray[np.float64]:
+        """Posterior median of :math:`w_{p,j}` given :math:`c_j = 1`, (d,); NaN where never active."""
+        return self.conditional_summary()["median"]
+
+    def parameter_conditional(self, level: float = LEVEL) -> dict[str, NDArray[np.float64]]:
+        r"""Summaries of each parametric-constraint parameter :math:`\vartheta_k` while its constraint is on.
+
+        Returns
+        -------
+        dict
+            ``mean``, ``median``, ``low``, ``high`` (P,) float (NaN where never active) and ``active_draws``
+            (P,) int. Without ``parameter_owner`` every finite draw counts.
+        """
+        names = tuple(getattr(self, "parameter_names", ()) or ())
+        P = len(names)
+        out = {k: np.full(P, np.nan) for k in ("mean", "median", "low", "high")}
+        out["active_draws"] = np.zeros(P, dtype=np.int64)
+        params = getattr(self, "parameters", None)
+        if not P or params is None or np.size(params) == 0:
+            return out
+        th = np.asarray(params, dtype=np.float64).reshape(-1, P)
+        on = np.asarray(self.indicators).reshape(-1, self.n_features)
+        owner = tuple(getattr(self, "parameter_owner", ()) or ())
+        q = (1.0 - level) / 2.0
+        for p in range(P):
+            keep = np.isfinite(th[:, p])
+            if len(owner) == P:
+                keep &= on[:, owner[p]] == 1
+            x = th[keep, p]
+            out["active_draws"][p] = x.size
+            if x.size:
+                out["mean"][p] = x.mean()
+                out["median"][p] = np.median(x)
+                out["low"][p], out["high"][p] = np.quantile(x, [q, 1.0 - q])
+        return out
+
+    def point_estimate(self, estimator: str = "selected") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        r"""One reward to plot or score: effective penalties :math:`c \circ w_p` (d,) and locations
+        :math:`\vartheta` (P,), NaN for parameters of constraints that are off.
+
+        Parameters
+        ----------
+        estimator : {"selected", "map", "mean"}
+            ``selected`` (default): :math:`c_j = 1` for the selected set (:meth:`selected`), :math:`w_{p,j}`
+            and :math:`\vartheta` their posterior medians given :math:`c_j = 1`. ``map``: the highest-density
+            visited draw. ``mean``: posterior mean of :math:`c_j w_{p,j}`, parameters' means while active.
+        """
+        d = self.n_features
+        owner = tuple(getattr(self, "parameter_owner", ()) or ())
+        if estimator == "selected":
+            on = self.p_constraint > SELECTION_THRESHOLD
+            eff = np.where(on, np.nan_to_num(self.conditional_median()), 0.0)
+            theta = self.parameter_conditional()["median"]
+            keep = on
+        elif estimator == "map":
+            eff = np.asarray(self.map_effective_penalty, dtype=np.float64)
+            mp = getattr(self, "map_parameters", None)
+            P = len(tuple(getattr(self, "parameter_names", ()) or ()))
+            theta = np.full(P, np.nan) if mp is None or np.size(mp) != P else np.asarray(mp, dtype=np.float64).copy()
+            keep = np.asarray(self.map_indicators).astype(bool)
+        elif estimator == "mean":
+            eff = np.asarray(self.effective_penalty, dtype=np.float64).reshape(-1, d).mean(axis=0)
+            theta = self.parameter_conditional()["mean"]
+            keep = self.p_constraint > 0
+        else:
+            raise ValueError(f"estimator: expected one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+        theta = np.asarray(theta, dtype=np.float64).copy()
+        if len(owner) == theta.size:
+            for p, j in enumerate(owner):
+                if not keep[j]:
+                    theta[p] = np.nan
+        return eff, theta

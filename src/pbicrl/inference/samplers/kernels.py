@@ -1,0 +1,585 @@
+"""Sampler kernels as pure ``init(rng) -> State`` and ``step(rng, state) -> (State, Info)`` functions.
+
+Three methods share one compiled loop (:mod:`pbicrl.inference.samplers._mcmc`):
+
+``"pbicrl"`` (default) - a valid reversible-jump Metropolis-Hastings sampler for the model
+    :math:`c_j \\sim \\mathrm{Bernoulli}(\\pi)`, :math:`w_{p,j} \\mid c_j{=}1 \\sim p(w)`,
+    likelihood paper Eq. 7. A switched-off feature has *no* penalty weight (its weight does not exist,
+    stored as 0), so no stale weight is ever proposed. Moves, each chosen with a fixed probability:
+
+    * **flip-and-draw** (probability ``p_flip``, feature :math:`j` uniform): switching :math:`j` on draws
+      :math:`w_j \\sim q_j = \\mathcal{N}(\\mu_j, s_j^2)` and is accepted with
+      :math:`\\min\\{1, \\frac{L(c', w')\\,\\pi\\,p(w_j)}{L(c, w)\\,(1-\\pi)\\,q_j(w_j)}\\}`; switching off is the
+      reverse move, accepted with the reciprocal ratio evaluated at the current :math:`w_j`. The
+      proposal :math:`q_j` does not depend on :math:`w_j`, so the pair of moves is reversible (Green 1995,
+      a dimension-matching jump with unit Jacobian).
+    * **weight step** (otherwise): a Gaussian random walk on one active weight chosen uniformly among the
+      active ones (the identity if none is active), accepted with the usual ratio including the prior.
+
+    * **joint weight step** (probability ``p_joint``, default 0): all active weights at once, a Gaussian step with
+      a covariance adapted during warm-up (for many correlated weights and large data).
+
+    During warm-up (``burn_in``) the random-walk scales adapt towards 30% acceptance and each :math:`q_j`
+    is fitted to the active draws of :math:`w_j` (mean, twice the standard deviation), so switching a
+    constraint on proposes weights where its posterior lies. Adaptation stops at the end of warm-up; the
+    kept draws come from a fixed, valid kernel.
+
+``"paper"`` - Algorithm 1 verbatim: iteration :math:`i` flips :math:`c_j` keeping the latent weight when
+    :math:`i \\bmod f_s \\ne 0`, else steps :math:`w_j` by :math:`\\mathcal{N}(0, \\sigma)`; acceptance by the
+    likelihood ratio alone (flat improper prior). Kept for exact reproduction; as a sampler it mixes
+    poorly (a feature switched back on proposes its stale latent weight).
+
+``"authors"`` - Algorithm 1 as the authors' public code runs it: identical to ``"paper"`` except that a
+    flip to off sets the weight to zero (switching it back on starts from zero), with their initialisation:
+    indicators Bernoulli(1/2) and penalties uniform on ``init_range`` (their point mass: [-30, -1];
+    Fetch-Reach: [-100, -10]) for every feature, nominal ones included. The reset acts as shrinkage of
+    :math:`c_j w_{p,j}` toward zero; judge this sampler on the effective penalty.
+
+``"bpl"`` - Algorithm 3: every candidate feature active, random walk on :math:`w_p` (optionally with a
+    prior). Features that are not candidates keep :math:`w_j = 0`: they are not part of the model.
+
+Priors (:mod:`pbicrl.inference.priors`) are resolved against the likelihood's data once per kernel
+(:attr:`Kernel.resolved_prior`): a scale-aware prior gets its per-feature scales
+:math:`s_j = \\text{prior\\_scale}/(\\beta\\,\\mathrm{sd}_j)` there, and the ``pbicrl``/``bpl`` samplers measure
+their random-walk steps, ``bpl``'s initial weights and the initial flip proposals in the same per-feature
+unit :math:`1/(\\beta\\,\\mathrm{sd}_j)`, so rescaling a feature rescales its chain and nothing else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from typing import Any, Literal, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pbicrl.inference.constraints import ConstraintSet
+from pbicrl.inference.likelihood import PreferenceLikelihood
+from pbicrl.inference.priors import IndicatorPrior, PriorError, ResolvedWeightPrior, WeightPrior, truncated_normal_ppf
+from pbicrl.inference.samplers import _mcmc
+
+__all__ = ["SamplerSettings", "ChainState", "StepInfo", "Kernel", "build_kernel", "METHODS"]
+
+METHODS = ("pbicrl", "paper", "authors", "bpl")
+_MODE = {"pbicrl": _mcmc.MODE_PBICRL, "paper": _mcmc.MODE_PAPER, "authors": _mcmc.MODE_AUTHORS,
+         "bpl": _mcmc.MODE_BPL}
+_LATENT = ("paper", "authors")  # Algorithm 1's schedule and acceptance; flat improper prior
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    r"""Settings of a sampler (bound into a :class:`Kernel` by :func:`build_kernel`).
+
+    Parameters
+    ----------
+    method : {"pbicrl", "paper", "authors", "bpl"}
+        See module docstring.
+    n_iterations : int
+        Metropolis-Hastings iterations per chain (paper: 400,000).
+    burn_in : int or None
+        Warm-up iterations, not kept (adaptation happens here). Default: a quarter of ``n_iterations``.
+    thin : int or None
+        Keep every ``thin``-th draw after warm-up. Default: at most 10,000 draws per chain.
+    sigma : float
+        Random-walk standard deviation :math:`\\sigma` (initial value when adapting). Paper: 0.1. With a
+        scale-aware weight prior, ``pbicrl`` and ``bpl`` use :math:`\\sigma / (\\beta\\,\\mathrm{sd}_j)` for
+        feature :math:`j` (:math:`\\sigma` per standard deviation of the feature).
+    f_s : int
+        Paper mode: sampling frequency :math:`f_s` (weight step when :math:`i \\bmod f_s = 0`). Paper: 4.
+    p_flip : float
+        PBICRL mode: probability of a flip-and-draw move per iteration.
+    adapt : bool or None
+        Adapt step sizes and flip proposals during warm-up. Default: on for ``pbicrl``, off otherwise
+        (the paper's algorithms use a fixed :math:`\\sigma`).
+    init_scale : float
+        ``paper``: initial latent weights :math:`\\mathcal{N}(0, \\text{init\\_scale}^2)` (Algorithm 1 verbatim).
+        ``bpl``: the same normal (per standard deviation of the feature for a scale-aware prior) restricted to the
+        prior's support, drawn exactly. ``pbicrl`` draws the initial weights from the prior instead. Initial
+        indicators are Bernoulli(1/2), as the paper's random initialisation.
+    weight_prior, indicator_prior
+        Priors (see :mod:`pbicrl.inference.priors`); default: half-Student-t (3 degrees of freedom, scale
+        2.5 / (beta sd_j)) on :math:`(-\\infty, 0]`, and Bernoulli(1/2). The paper mode ignores them (flat improper).
+    candidates : sequence of int or None
+        Features that may be constraints (default: all known features, or only the parametric
+        constraints when there are any, as in Algorithm 2). Others keep :math:`c_j = 0`.
+    sigma_theta : float
+        Random-walk step :math:`\sigma_2` of the constraint parameters (paper HalfCheetah/Ant: 0.5).
+    p_theta : float or None
+        Probability of a parameter step. ``pbicrl``: per iteration (default 0.25 with parametric
+        constraints); ``paper``/``bpl``: at iterations that would step a weight (default 0.5). Algorithm 2
+        as printed never proposes :math:`\vartheta` (its ``elsif i mod f_s != 1`` branch is always taken);
+        this schedule does.
+    naive_counts : bool
+        Recount every state on a parameter proposal even where a binary search suffices (for benchmarks).
+    p_joint : float
+        ``pbicrl`` and ``bpl``: probability per iteration of moving all active weights together, a Gaussian step
+        whose covariance is adapted to the chain during warm-up (adaptive Metropolis within the reversible jump;
+        fixed afterwards, so the kept draws come from a valid kernel). It pays when weights are correlated and
+        many (large data); taken from the single-weight steps' share. Default 0: the single-site moves only.
+    """
+
+    method: Literal["pbicrl", "paper", "authors", "bpl"] = "pbicrl"
+    n_iterations: int = 400_000
+    burn_in: int | None = None
+    thin: int | None = None
+    sigma: float = 0.1
+    f_s: int = 4
+    p_flip: float = 0.5
+    adapt: bool | None = None
+    init_scale: float = 1.0
+    init_range: tuple[float, float] = (-30.0, -1.0)
+    weight_prior: WeightPrior = field(default_factory=WeightPrior)
+    indicator_prior: IndicatorPrior = field(default_factory=IndicatorPrior)
+    candidates: tuple[int, ...] | None = None
+    sigma_theta: float = 0.5
+    p_theta: float | None = None
+    naive_counts: bool = False
+    p_joint: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method: unknown sampler {self.method!r}; choose one of {', '.join(METHODS)}")
+        if int(self.n_iterations) < 1:
+            raise ValueError(f"iterations: must be >= 1, got {self.n_iterations}")
+        if self.burn_in is not None and not (0 <= int(self.burn_in) < int(self.n_iterations)):
+            raise ValueError(f"burn_in: must lie in [0, iterations), got {self.burn_in} for {self.n_iterations} iterations")
+        if self.thin is not None and int(self.thin) < 1:
+            raise ValueError(f"thin: must be >= 1, got {self.thin}")
+        if not (np.isfinite(self.sigma) and self.sigma > 0):
+            raise ValueError(f"sigma: the random-walk step must be positive, got {self.sigma}")
+        if int(self.f_s) < 1:
+            raise ValueError(f"f_s: the sampling frequency must be >= 1, got {self.f_s}")
+        if not (0.0 < self.p_flip < 1.0):
+            raise ValueError(f"p_flip: must lie strictly between 0 and 1, got {self.p_flip}")
+        if not (np.isfinite(self.init_scale) and self.init_scale > 0):
+            raise ValueError(f"init_scale: must be positive, got {self.init_scale}")
+        lo_hi = tuple(float(x) for x in self.init_range)
+        if len(lo_hi) != 2 or not (np.isfinite(lo_hi[0]) and np.isfinite(lo_hi[1]) and lo_hi[0] < lo_hi[1]):
+            raise ValueError(f"init_range: expected two finite numbers low < high, got {self.init_range!r}")
+        object.__setattr__(self, "init_range", lo_hi)
+        if self.method == "pbicrl" and self.weight_prior.kind == "improper":
+            raise PriorError("weight prior: the pbicrl sampler needs a proper prior on w_p (P(c=1) is undefined "
+                             "otherwise); use 'student_t', 'normal' or 'flat' with bounds, or method='paper'")
+        if self.candidates is not None:
+            object.__setattr__(self, "candidates", tuple(int(j) for j in self.candidates))
+        if not (np.isfinite(self.sigma_theta) and self.sigma_theta > 0):
+            raise ValueError(f"sigma_theta: the parameter step must be positive, got {self.sigma_theta}")
+        if self.p_theta is not None and not (0.0 <= self.p_theta < 1.0):
+            raise ValueError(f"p_theta: must lie in [0, 1), got {self.p_theta}")
+        if self.method == "pbicrl" and self.p_theta is not None and self.p_flip + self.p_theta >= 1.0:
+            raise ValueError(f"p_flip + p_theta must be < 1 (weight steps need the rest), got {self.p_flip} + {self.p_theta}")
+        if not (0.0 <= float(self.p_joint) < 1.0):
+            raise ValueError(f"p_joint: must lie in [0, 1), got {self.p_joint}")
+        if self.p_joint and self.method in ("paper", "authors"):
+            raise ValueError("p_joint: joint weight moves apply to the pbicrl and bpl samplers only")
+        rest = (self.p_flip if self.method == "pbicrl" else 0.0) + (self.p_theta or 0.0)
+        if self.p_joint and rest + self.p_joint >= 1.0:
+            raise ValueError(f"p_joint: the move probabilities must leave room for single-weight steps, got "
+                             f"p_joint {self.p_joint} with {rest} for flips and parameter steps")
+
+    @property
+    def burn_in_(self) -> int:
+        return int(self.n_iterations) // 4 if self.burn_in is None else int(self.burn_in)
+
+    @property
+    def thin_(self) -> int:
+        if self.thin is not None:
+            return int(self.thin)
+        kept = int(self.n_iterations) - self.burn_in_
+        return max(1, -(-kept // 10_000))
+
+    @property
+    def n_draws(self) -> int:
+        kept = int(self.n_iterations) - self.burn_in_
+        return -(-kept // self.thin_)
+
+    @property
+    def adapt_(self) -> bool:
+        return self.method == "pbicrl" if self.adapt is None else bool(self.adapt)
+
+    def to_dict(self) -> dict:
+        return {"method": self.method, "iterations": int(self.n_iterations), "burn_in": self.burn_in_,
+                "thin": self.thin_, "sigma": self.sigma, "f_s": self.f_s, "p_flip": self.p_flip,
+                "adapt": self.adapt_, "init_scale": self.init_scale,
+                "init_range": list(self.init_range) if self.method == "authors" else None, "weight_prior": self.weight_prior.to_dict(),
+                "indicator_prior": {"pi": self.indicator_prior.pi},
+                "candidates": None if self.candidates is None else list(self.candidates),
+                "sigma_theta": self.sigma_theta, "p_theta": self.p_theta, "p_joint": float(self.p_joint)}
+
+
+class ChainState(NamedTuple):
+    r"""State of one chain.
+
+    Attributes
+    ----------
+    indicators : ndarray (d,) int8
+        :math:`c` (known features first, then parametric constraints).
+    penalty_weights : ndarray (d,)
+        :math:`w_p` (0 for inactive features in ``pbicrl`` mode; latent in ``paper`` mode).
+    parameters : ndarray (P,)
+        :math:`\vartheta` of all parametric constraints (meaningless where inactive in ``pbicrl`` mode).
+    scaled_returns : ndarray (N,)
+        :math:`a = \beta \bar\Phi (w_n + c \circ w_p)`.
+    features_T : ndarray (d, N)
+        :math:`\beta \bar\Phi^\top`, parametric rows at the current :math:`\vartheta`.
+    log_likelihood, log_prior : float
+    iteration : int
+    sigma, q_mean, q_scale : ndarray (d,)
+        Weight random-walk scales and flip-and-draw proposals (adapted during warm-up).
+    sigma_theta, q_theta_mean, q_theta_scale : ndarray (P,)
+        The same for the parameters.
+    adapt_stats : ndarray (5, d); adapt_theta_stats : ndarray (5, P)
+    map_indicators, map_penalty_weights, map_parameters : ndarray
+        Best state visited (highest log-posterior).
+    map_log_posterior, map_log_likelihood : float
+    counts : ndarray (7,) int64
+        Flip proposals/accepts, weight proposals/accepts (joint moves included), likelihood evaluations,
+        parameter proposals/accepts.
+    joint_cov : ndarray (d, d); joint_stats : ndarray (3, d, d); joint_scale : ndarray (3,)
+        The joint weight move (``SamplerSettings.p_joint``): adapted covariance, warm-up accumulators, and
+        [scale, proposals, accepts in the current adaptation window].
+    """
+
+    indicators: NDArray[np.int8]
+    penalty_weights: NDArray[np.float64]
+    parameters: NDArray[np.float64]
+    scaled_returns: NDArray[np.float64]
+    features_T: NDArray[np.float64]
+    log_likelihood: float
+    log_prior: float
+    iteration: int
+    sigma: NDArray[np.float64]
+    q_mean: NDArray[np.float64]
+    q_scale: NDArray[np.float64]
+    sigma_theta: NDArray[np.float64]
+    q_theta_mean: NDArray[np.float64]
+    q_theta_scale: NDArray[np.float64]
+    adapt_stats: NDArray[np.float64]
+    adapt_theta_stats: NDArray[np.float64]
+    map_indicators: NDArray[np.int8]
+    map_penalty_weights: NDArray[np.float64]
+    map_parameters: NDArray[np.float64]
+    map_log_posterior: float
+    map_log_likelihood: float
+    counts: NDArray[np.int64]
+    joint_cov: NDArray[np.float64]
+    joint_stats: NDArray[np.float64]
+    joint_scale: NDArray[np.float64]
+
+    def __repr__(self) -> str:
+        # shapes and scalars only: scaled_returns and features_T hold one entry per trajectory
+        on = np.flatnonzero(np.asarray(self.indicators)).tolist()
+        return (f"ChainState(iteration={self.iteration}, d={np.size(self.indicators)}, active={on}, "
+                f"params={np.size(self.parameters)}, N={np.size(self.scaled_returns)}, "
+                f"log_likelihood={self.log_likelihood:.6g}, log_prior={self.log_prior:.6g}, "
+                f"map_log_posterior={self.map_log_posterior:.6g})")
+
+
+class StepInfo(NamedTuple):
+    """What one step did."""
+
+    move: str  # "flip", "weight", "parameter" or "none"
+    accepted: bool
+    log_likelihood: float
+
+
+@dataclass(frozen=True, eq=False)
+class Kernel:
+    """A sampler with its settings bound: ``init``, ``step`` and the compiled ``run``.
+
+    ``constraints`` adds parametric constraint features after the likelihood's known features.
+    """
+
+    likelihood: PreferenceLikelihood
+    settings: SamplerSettings
+    constraints: ConstraintSet | None = None
+
+    @property
+    def d_known(self) -> int:
+        return self.likelihood.n_features
+
+    @property
+    def n_features(self) -> int:
+        """Known features plus parametric constraints."""
+        return self.d_known + (0 if self.constraints is None else self.constraints.n_constraints)
+
+    @property
+    def n_params(self) -> int:
+        return 0 if self.constraints is None else self.constraints.n_params
+
+    @property
+    def _cand(self) -> NDArray[np.int64]:
+        d = self.n_features
+        if self.settings.candidates is None:
+            cand = np.arange(self.d_known, d) if self.constraints is not None else np.arange(d)
+        else:
+            cand = np.asarray(self.settings.candidates, dtype=np.int64)
+        if cand.size == 0 or cand.min() < 0 or cand.max() >= d or np.unique(cand).size != cand.size:
+            raise ValueError(f"candidates: expected distinct feature indices in [0, {d}), got {cand.tolist()}")
+        return cand
+
+    @property
+    def p_theta_(self) -> float:
+        if self.constraints is None:
+            return 0.0
+        if self.settings.p_theta is not None:
+            return float(self.settings.p_theta)
+        return 0.25 if self.settings.method == "pbicrl" else 0.5
+
+    @cached_property
+    def _settings_prior(self) -> ResolvedWeightPrior:
+        """The settings' weight prior resolved against the likelihood's data (whatever the method)."""
+        return self.settings.weight_prior.resolve(self.likelihood.mean_features, beta=self.likelihood.beta,
+                                                  n_parametric=self.n_features - self.d_known)
+
+    @cached_property
+    def resolved_prior(self) -> ResolvedWeightPrior:
+        """The weight prior the sampler uses, resolved per feature against the likelihood's data.
+
+        Scale-aware priors get :math:`s_j = \\text{prior\\_scale} / (\\beta\\,\\mathrm{sd}_j)` from the likelihood's
+        ``mean_features`` and ``beta``; parametric constraint features use :math:`\\mathrm{sd} = 0.5`. The paper
+        mode uses the flat improper prior of Algorithm 1, whatever the settings say.
+        """
+        if self.settings.method in _LATENT:
+            return WeightPrior("improper", sign="any").resolve(self.likelihood.mean_features, beta=self.likelihood.beta,
+                                                               n_parametric=self.n_features - self.d_known)
+        return self._settings_prior
+
+    @cached_property
+    def _prior_arrays_cached(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        return self.resolved_prior.as_arrays()
+
+    def _prior_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """``(pkind, prm)`` for the compiled loop (resolved once per kernel)."""
+        return self._prior_arrays_cached
+
+    def prior_summary(self) -> dict[str, Any]:
+        """JSON-ready record of the priors as the sampler uses them (for ``summary.json``).
+
+        Keys: the weight prior's choices (``kind``, ``sign``, ``low``/``high``/``support`` with ``None`` for
+        infinite ends, ``mean``, ``scale``, ``df``, ``prior_scale``, ``scale_aware``), ``beta``, ``features``
+        (by feature index as a string: resolved ``scale`` :math:`s_j`, ``feature_sd``, ``sd_source``,
+        ``support``), ``method``, ``applied`` (False in paper mode, which ignores priors) and ``indicator_pi``.
+        """
+        s = self.settings
+        out = self.resolved_prior.to_dict()
+        out.update({"method": s.method, "applied": s.method not in _LATENT,
+                    "indicator_pi": None if s.method == "bpl" else float(s.indicator_prior.pi)})
+        return out
+
+    def _step_unit(self) -> NDArray[np.float64]:
+        """Per-feature unit of random-walk steps: 1 in paper mode (Algorithm 1 verbatim), else the prior's."""
+        return np.ones(self.n_features) if self.settings.method in _LATENT else self.resolved_prior.unit
+
+    def _param_arrays(self) -> dict[str, NDArray]:
+        if self.constraints is not None:
+            return self.constraints.compiled_arrays()
+        N = self.likelihood.mean_features.shape[0]
+        z = np.zeros(0)
+        zi = np.zeros(0, np.int64)
+        return {"fam": zi, "sign": zi, "poff": np.zeros(1, np.int64), "dims_off": np.zeros(1, np.int64), "dims": zi,
+                "sorted_vals": np.zeros((0, 0)), "states": np.zeros((0, 0)), "offsets": np.zeros(N + 1, np.int64),
+                "inv_len": np.zeros(N), "lo": z, "hi": z}
+
+    def _log_prior(self, c: NDArray, w: NDArray, theta: NDArray) -> float:
+        s = self.settings
+        if s.method in _LATENT:
+            return 0.0
+        lpw = self.resolved_prior.logpdf(w)
+        cs = self.constraints
+        lpt = np.zeros(self.n_features)
+        if cs is not None:
+            width = np.log(cs.bounds[:, 1] - cs.bounds[:, 0])
+            for m in range(cs.n_constraints):
+                lpt[self.d_known + m] = -width[cs.param_offsets[m]:cs.param_offsets[m + 1]].sum()
+        if s.method == "bpl":
+            cand = self._cand  # non-candidates are fixed at w = 0, not parameters of the model
+            return float(np.sum(lpw[cand]) + np.sum(lpt[cand]))
+        on = c.astype(bool)
+        return float(np.sum(lpw[on]) + np.sum(lpt[on]) + on.sum() * s.indicator_prior.log_odds)
+
+    def _columns(self, theta: NDArray) -> NDArray[np.float64]:
+        """(d, N) scaled mean features at ``theta``."""
+        from pbicrl.inference.samplers._parametric import param_column
+
+        lik = self.likelihood
+        rows = [lik.scaled_features_T]
+        if self.constraints is not None:
+            A = self._param_arrays()
+            N = lik.mean_features.shape[0]
+            for m in range(self.constraints.n_constraints):
+                col = np.empty(N)
+                param_column(m, theta, lik.beta, A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"],
+                             A["sorted_vals"], A["states"], A["offsets"], A["inv_len"], col, False)
+                rows.append(col[None, :])
+        return np.ascontiguousarray(np.concatenate(rows, axis=0))
+
+    def init(self, rng: np.random.Generator | int | None = None) -> ChainState:
+        """Random initial state (paper: "randomly sample penalty weight, constraint features and theta").
+
+        Indicators: Bernoulli(1/2) on the candidates (``bpl``: all on). Weights: ``pbicrl`` draws each active
+        one from the prior; ``paper`` draws :math:`\\mathcal{N}(0, \\text{init\\_scale}^2)` latent weights for every
+        feature, as Algorithm 1; ``bpl`` draws candidates from that normal (in the prior's step unit) restricted
+        to the prior's support, and fixes the others at 0. Every draw is exact (nothing is clipped) and lies in
+        the prior's support. Flip proposals :math:`q_j` start from the prior's scale
+        (:meth:`pbicrl.inference.priors.ResolvedWeightPrior.proposal`).
+        """
+        rng = np.random.default_rng(rng)
+        s = self.settings
+        lik = self.likelihood
+        d = self.n_features
+        cand = self._cand
+        prior = self.resolved_prior
+        unit = self._step_unit()
+        c = np.zeros(d, dtype=np.int8)
+        if s.method == "bpl":
+            c[:] = 1
+        else:
+            c[cand] = rng.integers(0, 2, cand.size).astype(np.int8)
+        if s.method == "paper":
+            w = rng.normal(0.0, s.init_scale, d)
+        elif s.method == "authors":
+            w = rng.uniform(s.init_range[0], s.init_range[1], d)
+        elif s.method == "bpl":
+            w = self._bpl_initial_weights(rng)
+        else:
+            w = np.where(c == 1, prior.sample(rng), 0.0)
+        P = self.n_params
+        if self.constraints is not None:
+            lo, hi = self.constraints.bounds[:, 0], self.constraints.bounds[:, 1]
+            theta = rng.uniform(lo, hi)
+            qt_mu, qt_s = 0.5 * (lo + hi), (hi - lo) / 4.0
+            sig_t = np.minimum(np.full(P, float(s.sigma_theta)), (hi - lo) / 4.0)
+        else:
+            theta = qt_mu = qt_s = sig_t = np.zeros(0)
+        FbT = self._columns(theta)
+        wn = np.concatenate([lik.nominal_weights, np.zeros(d - self.d_known)])
+        a = _returns(FbT, wn + c * w)
+        ll = lik.from_scaled_returns(a)
+        lp = self._log_prior(c, w, theta)
+        sigma = float(s.sigma) * unit
+        # Flip-and-draw proposals from the prior's own scale (ResolvedWeightPrior.proposal). Only pbicrl uses
+        # them; the other methods record them from the settings' prior, as they always did.
+        qprior = self._settings_prior
+        if qprior.kind == "improper":
+            q_mean, q_scale = np.zeros(d), np.maximum(10.0 * sigma, 2.0 * s.init_scale * unit)
+        else:
+            q_mean, q_sd = qprior.proposal()
+            q_scale = np.maximum(10.0 * sigma, q_sd)
+        return ChainState(c, w, theta.copy(), a, FbT, ll, lp, 0, sigma, q_mean, q_scale, sig_t.copy(),
+                          qt_mu.copy(), qt_s.copy(), np.zeros((5, d)), np.zeros((5, P)), c.copy(), w.copy(),
+                          theta.copy(), ll + lp, ll, np.zeros(_mcmc.N_COUNTS, dtype=np.int64),
+                          np.diag(sigma * sigma), np.zeros((3, d, d)), np.array([1.0, 0.0, 0.0]))
+
+    def _bpl_initial_weights(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        """:math:`\\mathcal{N}(0, (\\text{init\\_scale}\\,u_j)^2)` restricted to the prior's support, candidates only.
+
+        Draw the normal for every feature first (the rng call of the paper's BPL initialisation), then redraw
+        the candidates that fell outside the support from the truncated normal by its inverse CDF. That is
+        exact: :math:`P(A) = N(A \\cap S) + (1 - N(S))\\,N(A \\cap S)/N(S) = N(A \\cap S)/N(S)`. With a wide
+        ``flat`` prior nothing falls outside and no further random numbers are used.
+        """
+        s = self.settings
+        prior = self.resolved_prior
+        unit = self._step_unit()
+        w = rng.normal(0.0, s.init_scale, self.n_features) * unit  # unit is exactly 1 unless scale-aware
+        is_cand = np.zeros(self.n_features, dtype=bool)
+        is_cand[self._cand] = True
+        out = is_cand & ~((w >= prior.low) & (w <= prior.high))
+        if out.any():
+            k = np.flatnonzero(out)
+            w[k] = truncated_normal_ppf(rng.random(k.size), 0.0, s.init_scale * unit[k], prior.low[k], prior.high[k])
+        return np.where(is_cand, w, 0.0)
+
+    def _pmax(self) -> int:
+        if self.constraints is None:
+            return 1
+        return max(1, int(np.max(np.diff(self.constraints.param_offsets))))
+
+    def draw_randoms(self, rng: np.random.Generator, n: int) -> tuple[NDArray, ...]:
+        """Per-iteration random numbers: feature choice, move choice, normal, acceptance uniform, parameter normals,
+        and with ``p_joint`` > 0 the joint moves' normals (drawn last: without them the stream is unchanged)."""
+        out = (rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n))
+        zt = rng.standard_normal((n, self._pmax())) if self.constraints is not None else np.zeros((n, 1))
+        if self.settings.p_joint > 0.0:
+            return out + (zt, rng.standard_normal((n, self.n_features)))
+        return out + (zt,)
+
+    def new_buffers(self, n_draws: int) -> tuple[NDArray, ...]:
+        """Draw buffers ``(c, w, theta, ll, lp, n_out)`` for :meth:`run`."""
+        d, P = self.n_features, self.n_params
+        return (np.zeros((n_draws, d), np.int8), np.zeros((n_draws, d)), np.zeros((n_draws, P)), np.zeros(n_draws),
+                np.zeros(n_draws), np.zeros(1, np.int64))
+
+    def run(self, rng: np.random.Generator, state: ChainState, n: int, out: tuple[NDArray, ...] | None = None) -> ChainState:
+        """Advance ``n`` iterations in compiled code; ``out`` (from :meth:`new_buffers`) receives kept draws."""
+        s = self.settings
+        lik = self.likelihood
+        d = self.n_features
+        st = _copy_state(state)
+        out = self.new_buffers(0) if out is None else out
+        u_j, u_mv, z, u_acc, zt, *rest = self.draw_randoms(rng, n)
+        zj = rest[0] if rest else np.zeros((1, 1))
+        pkind, prm = self._prior_arrays()
+        A = self._param_arrays()
+        scal = np.array([st.log_likelihood, st.log_prior])
+        map_scal = np.array([st.map_log_posterior, st.map_log_likelihood])
+        N = lik.mean_features.shape[0]
+        _mcmc.run_chunk(
+            _MODE[s.method], n, st.iteration, s.burn_in_, s.thin_, 500 if s.adapt_ else 0, self.d_known,
+            bool(s.naive_counts),
+            st.indicators, st.penalty_weights, st.parameters, st.scaled_returns, scal, st.features_T, lik.beta, lik.power,
+            *lik.kernel_args(),
+            A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"], A["sorted_vals"], A["states"], A["offsets"],
+            A["inv_len"], A["lo"], A["hi"],
+            u_j, u_mv, z, u_acc, zt, self._cand, s.p_flip, self.p_theta_, int(s.f_s), s.indicator_prior.log_odds,
+            pkind, prm, st.sigma, st.q_mean, st.q_scale, st.sigma_theta, st.q_theta_mean, st.q_theta_scale,
+            st.adapt_stats, st.adapt_theta_stats, *out,
+            st.map_indicators, st.map_penalty_weights, st.map_parameters, map_scal, st.counts,
+            np.empty(N), np.empty(N), np.empty(self.n_params), np.zeros(d, dtype=np.bool_), np.zeros(d),
+            float(s.p_joint), zj, st.joint_cov, st.joint_stats, st.joint_scale)
+        return st._replace(log_likelihood=float(scal[0]), log_prior=float(scal[1]), iteration=st.iteration + n,
+                           map_log_posterior=float(map_scal[0]), map_log_likelihood=float(map_scal[1]))
+
+    def step(self, rng: np.random.Generator, state: ChainState) -> tuple[ChainState, StepInfo]:
+        """One Metropolis-Hastings iteration (pure: ``state`` is not modified)."""
+        new = self.run(rng, state, 1)
+        dc = new.counts - state.counts
+        move = "flip" if dc[0] else ("weight" if dc[2] else ("parameter" if dc[5] else "none"))
+        return new, StepInfo(move, bool(dc[1] or dc[3] or dc[6]), new.log_likelihood)
+
+
+def _returns(FbT: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:math:`a = (\\beta\\bar\\Phi) w` summed feature by feature, in a fixed order.
+
+    Not a BLAS matrix product: its summation order depends on the BLAS thread count (Ray workers run with one
+    thread), and a 1-ulp difference in the initial returns is enough to make chains differ between executors.
+    """
+    a = np.zeros(FbT.shape[1])
+    for j in range(FbT.shape[0]):
+        a += weights[j] * FbT[j]
+    return a
+
+
+def _copy_state(s: ChainState) -> ChainState:
+    return ChainState(*(x.copy() if isinstance(x, np.ndarray) else x for x in s))
+
+
+def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | None = None, *,
+                 constraints: ConstraintSet | None = None, **overrides) -> Kernel:
+    """Bind settings to a likelihood: ``build_kernel(lik, method="bpl", sigma=0.5)``."""
+    settings = SamplerSettings() if settings is None else settings
+    if overrides:
+        settings = replace(settings, **overrides)
+    kernel = Kernel(likelihood, settings, constraints)
+    if constraints is not None and constraints.dataset.n_trajectories != likelihood.mean_features.shape[0]:
+        raise ValueError("constraints: built on a dataset with a different number of trajectories than the likelihood")
+    kernel._cand  # validate candidates now  # noqa: B018
+    s = kernel.settings
+    rest = (s.p_flip if s.method == "pbicrl" else 0.0) + kernel.p_theta_
+    if s.p_joint and rest + s.p_joint >= 1.0:
+        raise ValueError(f"p_joint: the move probabilities must leave room for single-weight steps, got p_joint "
+                         f"{s.p_joint} with {rest} for flips and parameter steps")
+    kernel.resolved_prior  # and the prior against the data (e.g. a support without prior mass)  # noqa: B018
+    return kernel
