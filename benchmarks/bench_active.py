@@ -4,7 +4,7 @@ Not a test: a benchmark. For each problem and seed, a user (the oracle: the true
 demonstrations from a pool in batches. The first batch is random (the same for both orders, redrawn until
 it holds two groups); after each batch a short inference runs on the labelled ones (``pbicrl.infer``,
 grouped likelihood, defaults otherwise) and the next batch is either random or the top of
-:func:`pbicrl.suggest.suggest` (information gain about the indicators, evenly spaced posterior draws).
+:func:`pbicrl.analysis.suggest.suggest` (information gain about the indicators, evenly spaced posterior draws).
 
 Criteria, checked after every batch:
 
@@ -15,7 +15,7 @@ Criteria, checked after every batch:
 A run stops at the ``strict`` criterion or at the cap; the first batch that meets the ``relaxed`` one is
 recorded on the way. (``--stop relaxed`` ends runs earlier; the report then shows the relaxed criterion only.)
 
-Problems: ``synthetic`` (``pbicrl.synthetic.make_problem``, 3 groups, Gumbel ranking noise of scale 1 so
+Problems: ``synthetic`` (``pbicrl.inference.synthetic.make_problem``, 3 groups, Gumbel ranking noise of scale 1 so
 that the grouped model holds exactly, a fresh pool per seed) and ``point_mass`` (the shipped dataset as the
 pool, its labels as the oracle).
 
@@ -37,10 +37,10 @@ from typing import Any
 import numpy as np
 
 import pbicrl
-from pbicrl.data import Dataset
+from pbicrl.inference.data import Dataset
 from pbicrl.errors import PbicrlWarning
-from pbicrl.suggest import suggest
-from pbicrl.synthetic import make_problem
+from pbicrl.analysis.suggest import suggest
+from pbicrl.inference.synthetic import make_problem
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "reports" / "active_queries.json"

@@ -19,8 +19,8 @@ import tempfile
 from pathlib import Path
 
 import pbicrl
-from pbicrl.plots import plot_run
-from pbicrl.synthetic import make_problem
+from pbicrl.analysis.plots import plot_run
+from pbicrl.inference.synthetic import make_problem
 
 
 def main() -> None:

@@ -30,12 +30,12 @@ import numpy as np
 from numba import njit
 
 import pbicrl
-from pbicrl import _kernels
-from pbicrl.likelihood import PreferenceLikelihood
-from pbicrl.preferences import Preferences
-from pbicrl.priors import WeightPrior
-from pbicrl.samplers import build_kernel
-from pbicrl.synthetic import make_problem
+from pbicrl.inference import likelihood_kernels as _kernels
+from pbicrl.inference.likelihood import PreferenceLikelihood
+from pbicrl.inference.preferences import Preferences
+from pbicrl.inference.priors import WeightPrior
+from pbicrl.inference.samplers import build_kernel
+from pbicrl.inference.synthetic import make_problem
 
 FULL = 400_000
 

@@ -1,4 +1,4 @@
-"""Speed of the identifiability analysis (:func:`pbicrl.identify.identify`) as the number of trajectories grows.
+"""Speed of the identifiability analysis (:func:`pbicrl.analysis.identify.identify`) as the number of trajectories grows.
 
 Workload: 3 groups, d = 4 features shaped like the point-mass data (a continuous goal term, two region
 fractions, a goal-not-reached term), trajectories of 10 states; N = 10^3, 10^4, 10^5. Two variants:
@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from pbicrl.data import Dataset
+from pbicrl.inference.data import Dataset
 
 
 def make_dataset(n: int, *, noisy: bool, length: int = 10, seed: int = 0) -> Dataset:
@@ -53,7 +53,7 @@ def main() -> None:
     t = time.perf_counter()
     import scipy.optimize  # noqa: F401  (imported lazily by identify; paid once per process)
     t_import = time.perf_counter() - t
-    from pbicrl.identify import identify
+    from pbicrl.analysis.identify import identify
 
     identify(make_dataset(300, noisy=False))  # warm-up outside the timing
     print(f"scipy.optimize import: {t_import:.3f} s (once per process, not included below)")

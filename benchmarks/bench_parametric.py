@@ -14,10 +14,10 @@ import time
 
 import numpy as np
 
-from pbicrl.constraints import AxisHalfspace, ConstraintSet
-from pbicrl.likelihood import PreferenceLikelihood
-from pbicrl.samplers import build_kernel
-from pbicrl.synthetic import make_wall_problem
+from pbicrl.inference.constraints import AxisHalfspace, ConstraintSet
+from pbicrl.inference.likelihood import PreferenceLikelihood
+from pbicrl.inference.samplers import build_kernel
+from pbicrl.inference.synthetic import make_wall_problem
 
 
 def main() -> None:

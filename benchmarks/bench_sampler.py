@@ -22,17 +22,17 @@ import time
 
 import numpy as np
 
-from pbicrl.likelihood import PreferenceLikelihood
-from pbicrl.samplers import build_kernel
-from pbicrl.samplers.reference import reference_chain
-from pbicrl.synthetic import make_problem
+from pbicrl.inference.likelihood import PreferenceLikelihood
+from pbicrl.inference.samplers import build_kernel
+from pbicrl.inference.samplers.reference import reference_chain
+from pbicrl.inference.synthetic import make_problem
 
 _COMPILE_SNIPPET = """
 import time, numpy as np
 t = time.perf_counter()
-from pbicrl.likelihood import PreferenceLikelihood
-from pbicrl.samplers import build_kernel
-from pbicrl.synthetic import make_problem
+from pbicrl.inference.likelihood import PreferenceLikelihood
+from pbicrl.inference.samplers import build_kernel
+from pbicrl.inference.synthetic import make_problem
 lik = PreferenceLikelihood.from_dataset(make_problem(5, labels="violations", violation_rate=0.5, seed=0).dataset)
 k = build_kernel(lik, n_iterations=10, burn_in=0)
 k.run(np.random.default_rng(0), k.init(0), 10)

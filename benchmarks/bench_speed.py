@@ -29,8 +29,8 @@ FULL = 400_000
 
 # ------------------------------------------------------------------------------------------------ workers
 def _small_likelihood(protocol: str, kind: str) -> Any:
-    from pbicrl.likelihood import PreferenceLikelihood
-    from pbicrl.synthetic import make_problem
+    from pbicrl.inference.likelihood import PreferenceLikelihood
+    from pbicrl.inference.synthetic import make_problem
 
     prob = make_problem(60, labels="violations", violation_rate=0.4, seed=0)
     proto: str | int = "all" if protocol == "all" else int(protocol)
@@ -38,8 +38,8 @@ def _small_likelihood(protocol: str, kind: str) -> Any:
 
 
 def _ranking_likelihood(n: int, groups: int, kind: str) -> Any:
-    from pbicrl.likelihood import PreferenceLikelihood
-    from pbicrl.preferences import Preferences
+    from pbicrl.inference.likelihood import PreferenceLikelihood
+    from pbicrl.inference.preferences import Preferences
 
     F, rank = _ranked_features(n, seed=0)
     return PreferenceLikelihood(F, Preferences.from_groups(rank * groups // n), np.array([1.0, 0.0, 0.0, -1.0]),
@@ -57,7 +57,7 @@ def _ranked_features(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _time_chain(lik: Any, method: str, n: int, reps: int) -> dict[str, float]:
-    from pbicrl.samplers import build_kernel
+    from pbicrl.inference.samplers import build_kernel
 
     kernel = build_kernel(lik, method=method, n_iterations=n)
     state = kernel.init(0)
@@ -73,8 +73,8 @@ def _time_chain(lik: Any, method: str, n: int, reps: int) -> dict[str, float]:
 
 def _numpy_loop(lik: Any, m: int) -> dict[str, float]:
     """The plain per-iteration NumPy loop (``samplers.reference``, paper), ``m`` iterations."""
-    from pbicrl.samplers import build_kernel
-    from pbicrl.samplers.reference import reference_chain
+    from pbicrl.inference.samplers import build_kernel
+    from pbicrl.inference.samplers.reference import reference_chain
 
     k = build_kernel(lik, method="paper", n_iterations=m)
     s = k.init(0)
@@ -170,8 +170,8 @@ def section_ranking(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 def _large_likelihood(n: int, kind: str, seed: int = 0) -> Any:
     """3 groups of ``n`` trajectories (best first), ranked by a noisy true return (``bench_grouped.big_problem``)."""
-    from pbicrl.likelihood import PreferenceLikelihood
-    from pbicrl.preferences import Preferences
+    from pbicrl.inference.likelihood import PreferenceLikelihood
+    from pbicrl.inference.preferences import Preferences
 
     F, rank = _ranked_features(3 * n, seed)
     return PreferenceLikelihood(F, Preferences.from_groups(rank // n), np.array([1.0, 0.0, 0.0, -1.0]), kind=kind)
@@ -182,8 +182,8 @@ def _posterior_run(n: int, kind: str, iterations: int, chains: int, jobs: int, s
     """Chains on 3 x ``n`` trajectories in this process (workers for ``jobs`` > 1): times, ESS, R-hat, memory."""
     import resource
 
-    from pbicrl import _kernels
-    from pbicrl.samplers import sample
+    from pbicrl.inference import likelihood_kernels as _kernels
+    from pbicrl.inference.samplers import sample
 
     lik = _large_likelihood(n, kind, seed)
     a = np.ascontiguousarray(lik.scaled_features_T.T @ (lik.nominal_weights + np.array([0.0, -5.0, -10.0, 0.0])))
@@ -221,8 +221,7 @@ BURN_IN = 0.4  # of the iterations: the chains start from the prior, far from a 
 
 
 def section_large(args: argparse.Namespace) -> list[dict[str, Any]]:
-    from pbicrl import _kernels
-
+    from pbicrl.inference import likelihood_kernels as _kernels
     n = args.large_n
     print(f"3 groups x {n:,} trajectories, grouped likelihood, {args.large_chains} chains x "
           f"{args.large_iterations:,} iterations (warm-up {args.large_burn_in or 'default'}), {args.jobs} worker "

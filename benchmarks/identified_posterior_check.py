@@ -9,7 +9,7 @@ import json, sys, time, warnings
 import numpy as np
 warnings.simplefilter("ignore")
 import pbicrl
-from pbicrl.priors import WeightPrior
+from pbicrl.inference.priors import WeightPrior
 
 ITER = int(sys.argv[1]) if len(sys.argv) > 1 else 20000
 sets = {"point_mass": "point_mass", "fetch_reach": "fetch_reach", "point_mass_large": "runs/point_mass_large.npz"}

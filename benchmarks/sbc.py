@@ -2,7 +2,7 @@
 
 Small problems (d = 2 features, 3 groups x 10 trajectories, flat prior on [-3, 3], Bernoulli(1/2)
 indicators); each replicate draws (c, w_p) from the prior, simulates data, runs 4 chains of the ``pbicrl``
-sampler and ranks the truth among 80 evenly spaced posterior draws. See :mod:`pbicrl.calibration`.
+sampler and ranks the truth among 80 evenly spaced posterior draws. See :mod:`pbicrl.analysis.calibration`.
 
     python benchmarks/sbc.py                                 # both designs, 1000 replicates each
     python benchmarks/sbc.py --design pairs --replicates 200 --out runs/sbc
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pbicrl.calibration import SBCProblem, SBCResult, run_sbc
+from pbicrl.analysis.calibration import SBCProblem, SBCResult, run_sbc
 
 
 def histogram(res: SBCResult, path: Path) -> None:
