@@ -4,6 +4,7 @@
     python benchmarks/bench_speed.py small --baseline-src DIR   # ... and the same rows from another checkout's src/
     python benchmarks/bench_speed.py ranking               # 1,000 trajectories in 3 groups vs 1,000 groups
     python benchmarks/bench_speed.py large                 # 3 x 100,000 trajectories, grouped: ESS, R-hat, wall
+    python benchmarks/bench_speed.py large --large-p-joint 0 --large-no-pairwise   # ... single-weight steps only
     python benchmarks/bench_speed.py scaling               # seconds per effective sample vs N (scaling.png)
 
 Every row is timed in a fresh worker process (``--worker``) after compiling on a few iterations, so rows of the
@@ -223,10 +224,11 @@ BURN_IN = 0.4  # of the iterations: the chains start from the prior, far from a 
 def section_large(args: argparse.Namespace) -> list[dict[str, Any]]:
     from pbicrl.inference import likelihood_kernels as _kernels
     n = args.large_n
+    settings = {"p_joint": args.large_p_joint} if args.large_p_joint else {}
     print(f"3 groups x {n:,} trajectories, grouped likelihood, {args.large_chains} chains x "
           f"{args.large_iterations:,} iterations (warm-up {args.large_burn_in or 'default'}), {args.jobs} worker "
-          f"processes, settings {LARGE_SETTINGS}")
-    r = _posterior_run(n, "grouped", args.large_iterations, args.large_chains, args.jobs, LARGE_SETTINGS,
+          f"processes, settings {settings}")
+    r = _posterior_run(n, "grouped", args.large_iterations, args.large_chains, args.jobs, settings,
                        burn_in=args.large_burn_in)
     print(r["table"])
     print(f"wall {r['wall_s']:.0f} s, CPU {r['cpu_s']:.0f} s (all processes), {r['ms_per_eval']:.2f} ms per "
@@ -236,6 +238,8 @@ def section_large(args: argparse.Namespace) -> list[dict[str, Any]]:
     for q, v in r["per_quantity"].items():
         print(f"  {q:<22} R-hat {v['rhat']}  ESS bulk {v['ess_bulk']}  tail {v['ess_tail']}")
     rows = [r]
+    if args.large_no_pairwise:
+        return rows
     # the paper's all-pairs likelihood on the same data: one evaluation, timed
     lik = _large_likelihood(n, "pairwise")
     a = np.ascontiguousarray(lik.scaled_features_T.T @ (lik.nominal_weights + np.array([0.0, -5.0, -10.0, 0.0])))
@@ -327,7 +331,10 @@ def main() -> None:
     ap.add_argument("--large-n", type=int, default=100_000)
     ap.add_argument("--large-iterations", type=int, default=10_000)
     ap.add_argument("--large-chains", type=int, default=4)
-    ap.add_argument("--large-burn-in", type=int, default=None, help=f"warm-up iterations (default {BURN_IN:.0%})")
+    ap.add_argument("--large-burn-in", type=int, default=None, help=f"warm-up iterations (default {BURN_IN * 100:.0f}%% of the iterations)")
+    ap.add_argument("--large-p-joint", type=float, default=LARGE_SETTINGS["p_joint"],
+                    help="probability of the joint weight step (0: single-weight steps only, the sampler's default)")
+    ap.add_argument("--large-no-pairwise", action="store_true", help="skip timing the all-pairs likelihood")
     ap.add_argument("--scaling-sizes", default="100,300,1000,3000,10000,30000,100000")
     ap.add_argument("--scaling-iterations", type=int, default=8000)
     ap.add_argument("--scaling-chains", type=int, default=2)

@@ -218,3 +218,62 @@ def test_py_typed_ships_with_the_package():
     if pyproject.is_file():  # a source checkout: the marker must be package data
         data = tomllib.loads(pyproject.read_text())["tool"]["setuptools"]["package-data"]["pbicrl"]
         assert "py.typed" in data
+
+
+# ---------------------------------------------------------------------------------------------- p_joint
+def test_p_joint_is_a_setting_of_infer(tmp_path):
+    prob = make_problem(15, labels="violations", violation_rate=0.4, seed=3)
+    ds = prob.dataset
+    default = _infer(ds, iterations=600)
+    explicit = _infer(ds, iterations=600, p_joint=0.0)
+    np.testing.assert_array_equal(default.penalty_weights, explicit.penalty_weights)  # 0 is the default
+    joint = _infer(ds, iterations=600, p_joint=0.3)
+    assert joint.settings["p_joint"] == 0.3 and default.settings["p_joint"] == 0.0
+    assert not np.array_equal(joint.penalty_weights, default.penalty_weights)  # the joint move is used
+    from pbicrl.api import infer_from_config
+    from pbicrl.config import ConfigError, InferConfig
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PbicrlWarning)
+        cfg = InferConfig(iterations=600, chains=2, jobs=1, seed=3, p_joint=0.3)
+        np.testing.assert_array_equal(infer_from_config(ds, cfg, progress=False).penalty_weights,
+                                      joint.penalty_weights)
+    for bad in (-0.1, 1.0, float("nan"), "0.3", True):
+        with pytest.raises(ConfigError, match=r"p_joint: expected a number in \[0, 1\)"):
+            pbicrl.infer(ds, p_joint=bad, iterations=10, progress=False)
+    with pytest.raises(ConfigError, match="p_joint: the joint weight step belongs to the pbicrl and bpl"):
+        pbicrl.infer(ds, sampler="paper", p_joint=0.2, iterations=10, progress=False)
+    assert pbicrl.infer(ds, sampler="paper", p_joint=0, iterations=10, chains=1, jobs=1,
+                        progress=False).settings["p_joint"] == 0.0
+
+
+# ---------------------------------------------------------------------------------------------- many groups
+def test_a_total_ranking_of_twenty_thousand_runs_and_exports_in_modest_memory(monkeypatch):
+    # infer (identify + sampler) and the pointwise log-likelihood of a run over 20,000 single-trajectory groups:
+    # nothing of size K x K (3.2 GB) anywhere outside the samplers. Dataset caps the groups (another module).
+    import tracemalloc
+
+    import pbicrl.inference.data as data_mod
+    from pbicrl.analysis.export import pointwise_log_likelihood, run_likelihood
+    from pbicrl.inference.data import Dataset
+
+    monkeypatch.setattr(data_mod, "MAX_GROUPS", 10**6)
+    n = 20_000
+    rng = np.random.default_rng(5)
+    F = rng.uniform(0, 1, (n, 2))
+    group = np.empty(n, dtype=np.int64)
+    group[np.argsort(-(F @ np.array([1.0, -2.0]) + 0.3 * rng.standard_normal(n)))] = np.arange(1, n + 1)
+    ds = Dataset(features=F, offsets=np.arange(n + 1), group=group, feature_names=["a", "f"],
+                 nominal_weights=[1.0, 0.0])
+    tracemalloc.start()
+    try:
+        post = _infer(ds, iterations=60, chains=1, candidates=["f"])
+        lik, cset = run_likelihood(post, ds)  # margins read back from the run: 19,999 gaps, not a K x K matrix
+        shares = pointwise_log_likelihood(post, lik, constraints=cset, draws=[0, 10])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200e6, f"peak {peak / 1e6:.0f} MB"
+    assert len(post.extra["margins"]) == n - 1
+    assert lik.preferences.margin_offsets.size == n and lik.preferences.group_margins.size == 0
+    np.testing.assert_allclose(shares.sum(axis=-1), post.log_likelihood[:, [0, 10]], rtol=1e-9)

@@ -672,8 +672,10 @@ def test_runs_cached_under_old_defaults_or_versions_are_not_reused(tmp_path, dem
     assert again.records[0].status == "cached"
 
     # the default prior changes: same hash (defaults are left out of it), but the cached run is not reused
-    fields = tasks._infer_fields()
-    monkeypatch.setattr(tasks, "_infer_fields", lambda: fields | {"prior": "other-prior"})
+    from pbicrl.experiments import kinds
+
+    fields = kinds._infer_fields()
+    monkeypatch.setattr(kinds, "_infer_fields", lambda: fields | {"prior": "other-prior"})
     changed = Task("infer", cfg)
     assert changed.config_hash == task.config_hash and changed.config["prior"] == "other-prior"
     assert find_done(changed, tmp_path) is None

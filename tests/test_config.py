@@ -87,3 +87,30 @@ def test_the_command_line_reports_config_errors_in_one_line(tmp_path, capsys):
     assert main(["infer", "point_mass", "--out", str(tmp_path / "run"), "--config", str(tmp_path)]) == 2
     assert "is a directory" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.0, 1.5, "nan"])
+def test_p_joint_outside_zero_one_is_named(tmp_path, value):
+    text = "p_joint = nan\n" if value == "nan" else f"p_joint = {value}\n"
+    with pytest.raises(ConfigError, match=r"config key 'p_joint': expected a number in \[0, 1\)"):
+        load_config(_cfg(tmp_path, text))
+
+
+def test_p_joint_from_toml_and_the_command_line(tmp_path, capsys):
+    from pbicrl.cli import main
+
+    assert load_config(_cfg(tmp_path, "p_joint = 0.3\n")).p_joint == 0.3
+    assert load_config(_cfg(tmp_path, "[infer]\np_joint = 0\n")).p_joint == 0
+    with pytest.raises(ConfigError, match="config key 'p_joint': expected int or float, got True"):
+        load_config(_cfg(tmp_path, "p_joint = true\n"))
+    # --p-joint goes through the same record; out of range is one line naming the setting, and nothing is written
+    out = tmp_path / "run"
+    assert main(["infer", "point_mass", "--out", str(out), "--p-joint", "1.2", "--iterations", "50",
+                 "--chains", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "pbicrl: error: p_joint: expected a number in [0, 1)" in err and "Traceback" not in err
+    assert not out.exists()
+    assert main(["infer", "point_mass", "--out", str(out), "--p-joint", "0.2", "--sampler", "paper",
+                 "--iterations", "50", "--chains", "1", "--no-progress"]) == 2
+    assert "p_joint: the joint weight step belongs to the pbicrl and bpl samplers" in capsys.readouterr().err
+    assert not out.exists()

@@ -60,7 +60,8 @@ def test_reproductions_use_only_config_settings(tmp_path, monkeypatch):
         seen.extend(configs)
         raise Stop
 
-    monkeypatch.setattr(rep, "_run", capture)
+    monkeypatch.setattr(rep.navigation, "run_infer_tasks", capture)
+    monkeypatch.setattr(rep.walls, "run_infer_tasks", capture)
     ctx = rep.Context(tmp_path, True, "all", 1, "serial", None, False, 100, None)
     for name in ("grid", "halfcheetah"):
         try:
@@ -68,7 +69,7 @@ def test_reproductions_use_only_config_settings(tmp_path, monkeypatch):
         except (Stop, FileNotFoundError):
             pass
     assert seen
-    allowed = set(FIELDS) | set(INFER_EXTRA) | {"data"} | set(rep._BOOKKEEPING)
+    allowed = set(FIELDS) | set(INFER_EXTRA) | {"data"} | set(rep.configs.BOOKKEEPING)
     assert set().union(*seen) <= allowed
 
 

@@ -162,7 +162,7 @@ def test_evaluate_policy_on_the_wall():
 @pytest.mark.slow
 def test_close_loop_smoke(tmp_path):
     """The evaluation script end to end on a tiny budget (about a minute): cached, resumable, identical costs flagged."""
-    from pbicrl.experiments.close_loop import main as close_loop
+    from pbicrl.cli.close_loop import main as close_loop
 
     args = ["--out", str(tmp_path / "cl"), "--pm-steps", "1024", "--hc-steps", "1024", "--seeds", "1", "--episodes", "2",
             "--iterations", "2000"]

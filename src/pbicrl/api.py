@@ -109,6 +109,7 @@ def infer(
     constraints: Sequence[Constraint | dict] | None = None,
     sigma_theta: float = _D.sigma_theta,
     p_theta: float | None = None,
+    p_joint: float = _D.p_joint,
     alpha: float = _D.alpha,
     progress: bool = True,
     **deprecated: Any,
@@ -158,6 +159,10 @@ def infer(
         Parametric constraints over the dataset's states (axis halfspace, halfspace, box, ball).
     sigma_theta, p_theta
         Parameter random-walk step and move probability (see :class:`~pbicrl.inference.samplers.SamplerSettings`).
+    p_joint : float
+        ``pbicrl``/``bpl`` samplers: probability of the joint step of all active weights (covariance adapted in
+        warm-up), in [0, 1); default 0. Worth it on large data (``benchmarks/reports/speed.md``); ``p_flip`` +
+        ``p_theta`` + ``p_joint`` must stay below 1.
     alpha : float
         Level of the identifiability analysis run before sampling (:func:`pbicrl.analysis.identify.identify`); its
         result is in ``summary.json`` under ``identified``.
@@ -211,6 +216,7 @@ def infer(
                               "WeightPrior or as settings")
     if indicator_prior is not None and indicator_pi != _D.indicator_pi:
         raise ConfigError("indicator_prior: given together with indicator_pi; give one of them")
+    _check_p_joint(p_joint, sampler)
     _check_groups(dataset)
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,
                                             nominal_weights=nominal_weights, beta=beta, power=power,
@@ -224,7 +230,8 @@ def infer(
         method=sampler, n_iterations=int(iterations), burn_in=burn_in, thin=thin, sigma=sigma, f_s=f_s,
         p_flip=p_flip, init_scale=init_scale, init_range=tuple(init_range), weight_prior=wprior,
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
-        candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta)
+        candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta,
+        p_joint=float(p_joint))
     from pbicrl.analysis.identify import identify
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
@@ -238,6 +245,17 @@ def infer(
                                 "n_states": int(dataset.lengths.sum()), "group_counts": dataset.group_counts()},
                        "margins": m.as_dict(), "likelihood": likelihood, "pairs_seed": int(pairs_seed)})
     return post
+
+
+def _check_p_joint(p_joint: Any, sampler: str) -> None:
+    """``p_joint`` is a number in [0, 1), and non-zero only for the samplers that have the joint move."""
+    if isinstance(p_joint, (bool, np.bool_)) or not isinstance(p_joint, (int, float, np.integer, np.floating)):
+        raise ConfigError(f"p_joint: expected a number in [0, 1), got {p_joint!r}")
+    if not 0.0 <= float(p_joint) < 1.0:
+        raise ConfigError(f"p_joint: expected a number in [0, 1), got {p_joint!r}")
+    if p_joint and sampler in ("paper", "authors"):
+        raise ConfigError(f"p_joint: the joint weight step belongs to the pbicrl and bpl samplers, not to "
+                          f"sampler={sampler!r} (Algorithm 1 as printed); leave p_joint at 0")
 
 
 def _check_groups(dataset: Dataset) -> None:

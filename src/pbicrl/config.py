@@ -23,9 +23,11 @@ class ConfigError(ValueError):
     """Invalid configuration; the message names the key."""
 
 
-def _setting(default: Any, *types: type, minimum: int | None = None) -> Any:
-    """A field of :class:`InferConfig` with the types a file may give it and, for integers, the least value."""
-    meta = {"types": types, "minimum": minimum}
+def _setting(default: Any, *types: type, minimum: int | None = None,
+             half_open: tuple[float, float] | None = None) -> Any:
+    """A field of :class:`InferConfig` with the types a file may give it and, for integers, the least value; for
+    a probability-like number, the half-open range ``[low, high)`` it must lie in."""
+    meta = {"types": types, "minimum": minimum, "half_open": half_open}
     if isinstance(default, list):
         return field(default_factory=lambda: list(default), metadata=meta)
     return field(default=default, metadata=meta)
@@ -89,6 +91,12 @@ class InferConfig:
         ``bounds = [[0.0, 20.0]]`` (one ``[low, high]`` per parameter; default: the data's range).
     sigma_theta, p_theta : float
         Parameter step and parameter-move probability.
+    p_joint : float
+        ``pbicrl``/``bpl`` samplers: probability per iteration of moving all active penalty weights together (a
+        Gaussian step whose covariance is adapted during warm-up, then fixed), in [0, 1); it is taken from the
+        single-weight steps' share, so ``p_flip`` + ``p_theta`` + ``p_joint`` must stay below 1. Default 0 (single-weight
+        steps only; the ``paper``/``authors`` samplers have no joint move). It pays with many correlated weights and
+        large data, see ``benchmarks/reports/speed.md``.
     """
 
     nominal_weights: list[float] | None = _setting(None, list)
@@ -124,6 +132,7 @@ class InferConfig:
     constraints: list | None = _setting(None, list)
     sigma_theta: float = _setting(0.5, int, float)
     p_theta: float | None = _setting(None, int, float)
+    p_joint: float = _setting(0.0, int, float, half_open=(0.0, 1.0))
 
     def updated(self, **values: Any) -> "InferConfig":
         """Copy with the non-``None`` values replaced (command-line options over the file).
@@ -221,7 +230,8 @@ def check_setting(key: str, value: Any, *, where: str = "config") -> None:
     Raises
     ------
     ConfigError
-        ``"<where> key '<key>': ..."``: unknown key, wrong type, integer below its minimum.
+        ``"<where> key '<key>': ..."``: unknown key, wrong type, integer below its minimum, a number outside its
+        range (``p_joint``: [0, 1)).
     """
     spec = _FIELDS.get(key)
     if spec is None:
@@ -234,6 +244,9 @@ def check_setting(key: str, value: Any, *, where: str = "config") -> None:
     low = spec.metadata["minimum"]
     if low is not None and value < low:
         raise ConfigError(f"{where} key '{key}': expected an integer >= {low}, got {value}")
+    span = spec.metadata.get("half_open")
+    if span is not None and not (span[0] <= value < span[1]):  # NaN fails too
+        raise ConfigError(f"{where} key '{key}': expected a number in [{span[0]:g}, {span[1]:g}), got {value!r}")
 
 
 _FIELDS = {f.name: f for f in fields(InferConfig)}

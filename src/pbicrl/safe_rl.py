@@ -30,7 +30,6 @@ Needs torch and gymnasium (``pip install "pbicrl[rl,envs]"``).
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import math
@@ -52,7 +51,6 @@ __all__ = [
     "ENVS",
     "EvalResult",
     "SafePolicy",
-    "add_subcommands",
     "evaluate_policy",
     "load_policy",
     "make_env",
@@ -425,7 +423,7 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
     _need_rl()
     import torch
 
-    from pbicrl.baselines.icl import _torch_save, _write_json
+    from pbicrl.baselines.icl import save_checkpoint, write_json_file
     from pbicrl.baselines.ppo_lagrangian import PPOLagrangian
 
     # ---- every check before anything is written
@@ -533,9 +531,9 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
                             "wall_time_s": round(now - t_session, 1), "start_steps": start_steps,
                             "end_steps": agent.num_steps}]
         wall = wall_before + (now - t_session)
-        _torch_save({"kind": _KIND, "identity": identity, "ppo": agent.state_dict(), "history": history,
+        save_checkpoint({"kind": _KIND, "identity": identity, "ppo": agent.state_dict(), "history": history,
                      "sessions": sess, "wall_time_s": wall}, ckpt)
-        _write_json(out / "budget.json", {
+        write_json_file(out / "budget.json", {
             "status": status, "env": env, "cost": cost, "mode": identity["mode"], "seed": seed,
             "cost_limit": cost_limit, "warmup_steps": warmup_steps, "requested_steps": steps,
             "done_steps": agent.num_steps,
@@ -593,7 +591,7 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
     # ---- final policy, evaluation, summary
     meta = {"env": env, "cost": cost, "mode": identity["mode"], "cost_limit": cost_limit, "seed": seed,
             "steps": agent.num_steps}
-    _torch_save({"kind": _KIND, "env": env, "ac": agent.ac.state_dict(), "obs_mean": agent.obs_rms.mean,
+    save_checkpoint({"kind": _KIND, "env": env, "ac": agent.ac.state_dict(), "obs_mean": agent.obs_rms.mean,
                  "obs_var": agent.obs_rms.var, "normalize": bool(cfg.normalize_obs), "obs_dim": agent.obs_dim,
                  "act_dim": agent.act_dim, "act_low": agent.act_low.tolist(), "act_high": agent.act_high.tolist(),
                  "hidden": list(cfg.hidden), "meta": meta}, out / _POLICY)
@@ -617,7 +615,7 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
                "run": run_info, "runtime_s": round(float(st["wall_time_s"]), 1), "sessions": len(st["sessions"]),
                "ppo": cfg.to_dict(), "history": history}
     save("complete")
-    _write_json(out / "summary.json", summary)
+    write_json_file(out / "summary.json", summary)
     ev = "" if evaluation is None else (f"; evaluation ({eval_episodes} episodes): violation rate "
                                         f"{evaluation['violation_rate']:.3f}, true return {evaluation['true_return']:.1f}, "
                                         f"nominal return {evaluation['nominal_return']:.1f}, cost {evaluation['cost']:.2f}")
@@ -625,66 +623,13 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
     return summary
 
 
-# --------------------------------------------------------------------------------------------- CLI
-def _cmd_train_safe(args: argparse.Namespace) -> int:
-    constraints = [c.strip() for c in args.constraints.split(",") if c.strip()] if args.constraints else None
-    try:
-        s = train_safe(args.out, args.env, args.steps, args.cost_limit, run=args.run, cost=args.cost, mode=args.mode,
-                       quantile=args.quantile, constraints=constraints, seed=args.seed, eval_episodes=args.eval_episodes,
-                       warmup_steps=args.warmup_steps,
-                       progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"pbicrl: interrupted; checkpoint in {args.out}, rerun the same command to resume", file=sys.stderr)
-        return 130
-    print(json.dumps({k: s[k] for k in ("env", "cost", "cost_limit", "steps", "lambda", "last_10_updates", "evaluation",
-                                        "runtime_s")}, indent=2))
-    return 0
+def __getattr__(name: str) -> Any:
+    if name == "add_subcommands":  # the command line moved to pbicrl.cli.train_safe
+        from importlib import import_module
 
+        from pbicrl.errors import warn
 
-def add_subcommands(sub: Any) -> None:
-    """Register ``pbicrl train-safe`` (imports nothing optional until it runs)."""
-    from pbicrl.cli.argtypes import nonneg_int, positive_int
-
-    def limit(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-        if not (math.isfinite(v) and v >= 0):
-            raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-        return v
-
-    def unit(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-        if not 0.0 < v < 1.0:
-            raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
-        return v
-
-    p = sub.add_parser("train-safe", help="train a policy under an inferred constraint (PPO-Lagrangian; extras rl, envs)",
-                       description="Constrained RL on the cost of an inferred constraint: maximise the nominal return "
-                                   "subject to expected cost per episode <= --cost-limit. Resumable: rerun the same "
-                                   "command to continue.")
-    p.add_argument("run", nargs="?", type=Path, help="run directory of pbicrl infer (needed for --cost inferred)")
-    p.add_argument("--env", required=True, choices=ENVS, help="environment (its nominal reward is the objective)")
-    p.add_argument("--steps", required=True, type=positive_int, help="total environment steps")
-    p.add_argument("--cost-limit", type=limit, default=DEFAULT_COST_LIMIT,
-                   help=f"budget D on the expected cost per episode (default {DEFAULT_COST_LIMIT:g})")
-    p.add_argument("--out", required=True, type=Path, help="run directory (checkpoint, progress.log, budget.json, ...)")
-    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
-    p.add_argument("--mode", choices=["indicator", "probability", "sample", "penalty"], default="indicator",
-                   help="how the posterior becomes a cost (default indicator: 1 per step in a selected constraint)")
-    p.add_argument("--quantile", type=unit, default=0.5, help="penalty mode: quantile of w_p | c=1 (default 0.5)")
-    p.add_argument("--constraints", help="comma-separated constraints to cost (default: the selected set, or every "
-                                         "feature with P(c=1) > 0 for probability/sample)")
-    p.add_argument("--cost", choices=COSTS, default="inferred",
-                   help="inferred (default): the run's constraint; true: the environment's true constraint "
-                        "(reference); none: nominal only")
-    p.add_argument("--warmup-steps", type=nonneg_int, default=0,
-                   help="steps of nominal training (zero cost) before the cost is on (default 0)")
-    p.add_argument("--eval-episodes", type=nonneg_int, default=20,
-                   help="episodes of the final policy to evaluate into summary.json (default 20)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr (progress.log still has them)")
-    p.set_defaults(func=_cmd_train_safe)
+        warn("pbicrl.safe_rl.add_subcommands is deprecated and will be removed in pbicrl 0.3: "
+             "use pbicrl.cli.train_safe.add_subcommands")
+        return import_module("pbicrl.cli.train_safe").add_subcommands
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

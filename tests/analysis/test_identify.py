@@ -376,3 +376,130 @@ def test_bad_input_names_the_field(kwargs, exc, field):
 def test_bad_dataset():
     with pytest.raises(IdentifyError, match="dataset"):
         identify(np.zeros((3, 2)))
+
+
+# ------------------------------------------------------------------------------------------------ many groups
+def _full_pair_lp(ds, margins, beta, alpha, cand, neg):
+    """Brute force over every cross-group pair (no group extremes, no adjacent-gap reduction): separability, the
+    ends of each candidate's penalty over S_alpha, and the signs in which it is unbounded."""
+    from scipy.optimize import linprog
+
+    I, J, M = Preferences.from_groups(ds.group, margins).to_pair_list()
+    F, c = ds.mean_features, ds.mean_features @ ds.nominal_weights
+    L = math.log((1 - alpha) / alpha)
+    D = (F[I] - F[J])[:, cand]
+    A, b = -beta * D, beta * (c[I] - c[J]) - M - L    # beta (c_i - c_j + D w) >= m + L
+    p = len(cand)
+    box = [(-1e6, 0.0 if neg else 1e6)] * p
+    feasible = linprog(np.zeros(p), A_ub=A, b_ub=b, bounds=box, method="highs").status == 0
+    ends, ways = {}, {}
+    for a in range(p):
+        if feasible:
+            e = []
+            for sgn in (-1.0, 1.0):
+                obj = np.zeros(p)
+                obj[a] = -sgn
+                x = linprog(obj, A_ub=A, b_ub=b, bounds=box, method="highs").x[a]
+                e.append(sgn * math.inf if abs(x) > 1e5 else x)
+            ends[a] = (e[0], min(e[1], 0.0) if neg else e[1])
+        ways[a] = []
+        for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
+            # max t  s.t.  D delta >= 0 (no pair worse), sgn delta_a >= t, sum D delta >= t (not flat), |delta| <= 1
+            obj = np.zeros(p + 1)
+            obj[p] = -1.0
+            lead = np.zeros(p + 1)
+            lead[a], lead[p] = -sgn, 1.0
+            rows = np.vstack([np.c_[-D, np.zeros(len(D))], lead, np.r_[-D.sum(axis=0), 1.0]])
+            bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + [(0.0, 1.0)]
+            x = linprog(obj, A_ub=rows, b_ub=np.zeros(len(rows)), bounds=bnd, method="highs").x
+            if x[p] > 1e-6:
+                ways[a].append(int(sgn))
+    return feasible, ends, ways
+
+
+def _ranked(n, K, *, seed=0, sizes=None, wn=(4.0, 0.0, 0.0)):
+    """n trajectories ranked by 4 a - 6 f1 - 2 f2 and cut into K groups (equal, or ``sizes``, best first)."""
+    rng = np.random.default_rng(seed)
+    F = rng.uniform(0, 1, (n, 3))
+    order = np.argsort(-(F @ np.array([4.0, -6.0, -2.0])))
+    sizes = np.full(K, n // K) if sizes is None else np.asarray(sizes)
+    sizes[-1] += n - sizes.sum()
+    group = np.empty(n, dtype=np.int64)
+    group[order] = np.repeat(np.arange(1, K + 1), sizes)
+    return Dataset(features=F, offsets=np.arange(n + 1), group=group, feature_names=["a", "f1", "f2"],
+                   nominal_weights=list(wn))
+
+
+@pytest.mark.parametrize("layout", ["total", "equal", "mixed", "matrix"])
+@pytest.mark.parametrize("sign", ["negative", "any"])
+def test_many_groups_match_the_full_pair_lp(layout, sign):
+    # total ranking (every group one trajectory: no bound variables), 10 groups of 3, groups of 1-3 (both kinds in
+    # one LP), and a non-additive K x K matrix (one row per group pair) - each against every pair's row.
+    sizes = {"total": np.ones(30, int), "mixed": [1, 3, 2, 1, 1, 3, 2, 2, 1, 3, 1, 2, 3, 1], "matrix": [1, 3, 2, 1, 3]}
+    n = {"mixed": 40, "matrix": 15}.get(layout, 30)
+    K = len(sizes.get(layout, [0] * 10))
+    ds = _ranked(n, K, sizes=np.array(sizes[layout]) if layout in sizes else None)
+    rng = np.random.default_rng(1)
+    cases = [(None, 1000.0, ["f1", "f2"]), (Margins.from_gaps(np.linspace(0.0, 0.3, K - 1)), 1000.0, ["f1", "f2"])]
+    if layout == "matrix":
+        m = np.triu(rng.uniform(0.0, 0.2, (K, K)), 1)
+        assert Margins(m).offsets is None  # not additive: the dense form
+        cases = [(Margins(m), 1000.0, ["f1", "f2"])]
+    neg = sign == "negative"
+    seen_finite = 0
+    for margins, beta, cands in cases:
+        res = identify(ds, candidates=cands, beta=beta, margins=margins, penalty_sign=sign)
+        cand = [ds.feature_names.index(c) for c in cands]
+        feasible, ends, ways = _full_pair_lp(ds, margins, beta, 0.05, cand, neg)
+        assert res.separable == feasible
+        for a, name in enumerate(cands):
+            f = res[name]
+            assert sorted(ways[a]) == ({"-inf": [-1], "+inf": [1], "both": [-1, 1]}[f.direction] if f.direction else [])
+            if feasible:
+                for got, want in zip(f.penalty_range, ends[a]):
+                    if math.isinf(want):
+                        assert got == want
+                    else:
+                        seen_finite += 1
+                        assert got == pytest.approx(want, rel=1e-7, abs=1e-7)
+    assert seen_finite >= 4  # the comparison covered finite ends, not only infinite ones
+    # Zero nominal weights and every feature a candidate: some direction orders every pair strictly, so every
+    # penalty is unbounded - in the full LP too.
+    free = Dataset(features=ds.mean_features, offsets=ds.offsets, group=ds.group, feature_names=ds.feature_names,
+                   nominal_weights=[0.0, 0.0, 0.0])
+    res = identify(free, penalty_sign="any")
+    feasible, ends, ways = _full_pair_lp(free, None, 1.0, 0.05, [0, 1, 2], False)
+    assert res.separable and feasible
+    for a, name in enumerate(free.feature_names):
+        f = res[name]
+        assert f.unbounded and sorted(ways[a]) == {"-inf": [-1], "+inf": [1], "both": [-1, 1]}[f.direction]
+
+
+def test_twenty_thousand_groups_in_modest_memory(monkeypatch):
+    # A total ranking of 20,000 trajectories: the old LP had K(K-1)/2 = 2e8 ordering rows and the result a
+    # K x K margin matrix (3.2 GB). Dataset itself caps the groups (another module's limit); lifted here.
+    import tracemalloc
+
+    import pbicrl.inference.data as data_mod
+
+    monkeypatch.setattr(data_mod, "MAX_GROUPS", 10**6)
+    n = 20_000
+    rng = np.random.default_rng(3)
+    F = rng.uniform(0, 1, (n, 2))
+    ret = F @ np.array([-3.0, 1.0]) + 0.05 * rng.standard_normal(n)  # noisy: not separable, finite scale
+    group = np.empty(n, dtype=np.int64)
+    group[np.argsort(-ret)] = np.arange(1, n + 1)
+    ds = Dataset(features=F, offsets=np.arange(n + 1), group=group, feature_names=["f", "g"],
+                 nominal_weights=[0.0, 1.0])
+    tracemalloc.start()
+    try:
+        res = identify(ds, candidates=["f"])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200e6, f"peak {peak / 1e6:.0f} MB"
+    assert len(res.group_labels) == n and res.margins.n_groups == n and res.margins.offsets is not None
+    assert not res.separable and not res["f"].unbounded  # the noise leaves no direction that orders every pair
+    d = res.to_dict()
+    assert len(d["margins"]) == n - 1  # consecutive gaps, not K(K-1)/2 entries
+    assert "(19999 in all)" in res.table()

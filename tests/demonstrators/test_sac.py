@@ -168,3 +168,44 @@ def test_cli_parser_mounts_and_validates():
         build_parser().parse_args(["train-wall", "--env", "hopper", "--mode", "good", "--steps", "1", "--out", "x"])
     with pytest.raises(SystemExit):
         build_parser().parse_args(["train-wall", "--env", "ant", "--mode", "good", "--steps", "0", "--out", "x"])
+
+
+def test_checkpoint_swap_is_atomic_follows_the_umask_and_a_killed_swap_is_undone(tmp_path):
+    """Checkpoints are written with pbicrl._atomic: complete or absent, permissions of a plain mkdir/open under
+    the umask, and a swap killed between its two renames leaves the previous checkpoint, put back on resume."""
+    from pbicrl._atomic import temporary_prefix, umask
+    from pbicrl.demonstrators.sac import _find_checkpoint, _save_checkpoint
+
+    class Model:  # what _save_checkpoint asks of an SB3 model
+        def __init__(self, tag):
+            self.tag = tag
+
+        def save(self, path):
+            path.write_text(f"model {self.tag}")
+
+        def save_replay_buffer(self, path):
+            path.write_text(f"buffer {self.tag}")
+
+    out = tmp_path / "run"
+    out.mkdir()
+    _save_checkpoint(Model(1), out, {"num_timesteps": 100})
+    _save_checkpoint(Model(2), out, {"num_timesteps": 200})
+    ckpt = out / "checkpoint"
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint"]  # no temporaries, no .old left
+    assert json.loads((ckpt / "state.json").read_text()) == {"num_timesteps": 200}
+    assert (ckpt / "model.zip").read_text() == "model 2"
+    assert ckpt.stat().st_mode & 0o777 == 0o777 & ~umask()
+    assert (ckpt / "state.json").stat().st_mode & 0o777 == 0o666 & ~umask()
+    # killed after moving the previous checkpoint aside, before the new one took its place: a dead writer's
+    # ".old-" temporary holds it (pid 2**22 + 1 is above Linux's pid_max: no such process)
+    aside = out / (temporary_prefix(ckpt, "old").rsplit(".", 2)[0] + f".{2**22 + 1}.x")
+    aside.mkdir()
+    os.replace(ckpt, aside / "old")
+    found = _find_checkpoint(out)
+    assert found == ckpt and json.loads((ckpt / "state.json").read_text()) == {"num_timesteps": 200}
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint"]
+    # the swap of earlier versions (checkpoint.old) still resumes, and the next checkpoint removes it
+    os.replace(ckpt, out / "checkpoint.old")
+    assert _find_checkpoint(out) == out / "checkpoint.old"
+    _save_checkpoint(Model(3), out, {"num_timesteps": 300})
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint"]

@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from pbicrl.experiments.reproduce import EXPERIMENTS, reproduce
@@ -42,6 +43,62 @@ def test_navigation_and_wall_smoke(tmp_path, stand_ins):
     reproduce("halfcheetah", out=tmp_path, iterations=3000, seeds=2, executor="serial", progress=False, data=stand_ins)
     assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == before
     assert reports[0].exists()
+    _navigation_numbers_are_its_runs(tmp_path, res)
+    _wall_numbers_are_its_runs(tmp_path, wall)
+
+
+def _runs(root, name):
+    """``(config, result)`` of the finished runs named ``name`` under ``root/runs``, in seed order."""
+    recs = [json.loads(p.read_text()) for p in sorted((root / "runs").glob("*/result.json"))]
+    recs = sorted((r for r in recs if r["name"] == name), key=lambda r: r["config"]["seed"])
+    return [(r["config"], r["result"]) for r in recs]
+
+
+def _ms(values):
+    return f"{np.mean(values):.3g} ± {np.std(values):.3g}"
+
+
+def _navigation_numbers_are_its_runs(root, res):
+    """The BPL row of results.json and of report.md is computed from the BPL runs' own result.json files."""
+    runs = _runs(root, "point-mass-bpl")
+    assert [c["seed"] for c, _ in runs] == [0, 1] and all(c["demos_per_group"] == 60 for c, _ in runs)
+    W = np.array([r["map_effective_penalty"] for _, r in runs])
+    row = res["methods"]["BPL"]
+    np.testing.assert_allclose(row["per_seed"], W)
+    np.testing.assert_allclose(row["mean"], W.mean(0))
+    np.testing.assert_allclose(row["std"], W.std(0))
+    line = next(ln for ln in (root / "point-mass" / "report.md").read_text().splitlines() if ln.startswith("| BPL |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[1:1 + W.shape[1]] == [_ms(W[:, j]) for j in range(W.shape[1])]
+    truth = np.array(res["paper"]["true_weights"], float) - np.array(res["paper"]["nominal_weights"], float)
+    on = truth != 0
+    within = sum(bool(np.all(np.abs(w[on] - truth[on]) <= 0.15 * np.abs(truth[on]))) for w in W)
+    assert cells[-1] == f"{within}/2" and row["within_15pct"] == within
+
+
+def _wall_numbers_are_its_runs(root, wall):
+    """Each size's CMSE in results.json is the runs' MAP walls against the true wall, and the report's
+    sensitivity table prints exactly those numbers."""
+    from pbicrl.analysis.metrics import cmse_location
+
+    true_wall = wall["paper"]["wall"]
+    lines = (root / "halfcheetah" / "report.md").read_text().splitlines()
+    for n in (20, 50, 100, 200):
+        runs = _runs(root, f"halfcheetah-n{n}")
+        assert len(runs) == 2 and all(c["demos_per_group"] == n and c["sampler"] == "paper" for c, _ in runs)
+        theta = [r["map_parameters"][0] for _, r in runs]
+        entry = wall["sizes"][str(n)]
+        assert entry["theta"] == theta
+        errs = [cmse_location(t, true_wall) for t in theta if t is not None]
+        assert entry["wall_off_seeds"] == 2 - len(errs)
+        if errs:
+            np.testing.assert_allclose(entry["cmse"], [np.mean(errs), np.std(errs)])
+        row = next(ln for ln in lines if ln.startswith(f"| {n} | "))
+        cell = [c.strip() for c in row.strip("|").split("|")][1]
+        assert cell.startswith(_ms(errs) if errs else "no seed found a wall")
+        default = _runs(root, f"halfcheetah-default-n{n}")
+        assert len(default) == 2 and all(c["sampler"] == "pbicrl" and c["likelihood"] == "grouped" for c, _ in default)
+        assert wall["default"][str(n)]["theta"] == [r["map_parameters"][0] for _, r in default]
 
 
 def test_unknown_experiment_lists_the_registry():

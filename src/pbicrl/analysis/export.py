@@ -67,6 +67,7 @@ from pbicrl.runs import constraint_set_of
 
 if TYPE_CHECKING:
     from pbicrl.inference.constraints import ConstraintSet
+    from pbicrl.inference.preferences import Margins
     from pbicrl.inference.data import Dataset
     from pbicrl.inference.likelihood import PreferenceLikelihood
 
@@ -81,6 +82,7 @@ POINTWISE_DRAWS = 500
 
 _ROW_CHUNK = 256  # rows of a dense block evaluated at once: bounds the temporary to 256 x (group size) floats
 _CHECK_RTOL = 1e-6  # rebuilt vs recorded total log-likelihood: agreement expected to ~1e-12, this is generous
+_AS_DICT_ALL_PAIRS = 64  # Margins.as_dict lists every m_kl up to this many groups, else consecutive gaps only
 
 
 # --------------------------------------------------------------------------------------- pointwise shares
@@ -89,12 +91,11 @@ def _pointwise_pairwise(lik: "PreferenceLikelihood", a: NDArray[np.float64]) -> 
     p = lik.preferences
     N = a.size
     out = np.zeros(N)
-    for b in range(p.n_blocks):
-        rows = p.block_rows[p.block_row_offsets[b]:p.block_row_offsets[b + 1]]
-        cols = p.block_cols[p.block_col_offsets[b]:p.block_col_offsets[b + 1]]
+    # dense blocks, or a ranked layout's rows against every worse group (per-column margins): never K x K
+    for rows, cols, margin in p.iter_blocks():
         if rows.size == 0 or cols.size == 0:
             continue
-        ac = a[cols] + p.block_margins[b]
+        ac = a[cols] + margin
         col_sum = np.zeros(cols.size)
         for r0 in range(0, rows.size, _ROW_CHUNK):
             r = rows[r0:r0 + _ROW_CHUNK]
@@ -130,18 +131,94 @@ def _split(total: float, weights: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _pointwise_grouped(lik: "PreferenceLikelihood", a: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Half of each :math:`\\log P_k` to the members of :math:`\\mathcal{G}_k` by their winner terms, half to the lower
-    trajectories by their weight in :math:`\\Lambda_k` (module docstring)."""
+    r"""Half of each :math:`\log P_k` to the members of :math:`\mathcal{G}_k` by their winner terms, half to the lower
+    trajectories by their weight in :math:`\Lambda_k` (module docstring).
+
+    Additive margins (offsets :math:`o`, :math:`m_{k\ell} = o_\ell - o_k`) and finite returns take
+    :func:`_pointwise_grouped_additive`, O(N + K); otherwise every group's term is split one by one, O(N K)."""
+    p = lik.preferences
+    o = p.margin_offsets
+    if o.size and np.all(np.isfinite(a)):
+        return _pointwise_grouped_additive(lik, a)
+    M = p.group_margins
+    return _pointwise_grouped_loop(lik, a, (lambda k: M[k]) if M.size else (lambda k: o - o[k]))
+
+
+def _group_terms(a: NDArray[np.float64], items: NDArray[np.int64], off: NDArray[np.int64],
+                 log_lam: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r"""Every :math:`\log P_k` (k < K-1) and every upper member's winner term :math:`\log\sigma(x_i)` (ranked order)."""
+    from pbicrl.inference import likelihood_kernels as _kernels
+
+    K = off.size - 1
+    sizes = np.diff(off)[:K - 1]
+    x = a[items[:off[K - 1]]] - np.repeat(log_lam, sizes)
+    own = -np.logaddexp(0.0, -x)  # log sigma(x_i): member i alone against every lower trajectory
+    terms = np.empty(K - 1)
+    one = sizes == 1
+    terms[one] = own[off[:K - 1][one]]  # one item: P_k = sigma(x) exactly
+    buf = np.empty((2, max(1, int(sizes.max()))))
+    for k in np.flatnonzero(~one):
+        terms[k] = float(_kernels.group_term(np.ascontiguousarray(x[off[k]:off[k + 1]]), buf))
+    return terms, own
+
+
+def _pointwise_grouped_additive(lik: "PreferenceLikelihood", a: NDArray[np.float64]) -> NDArray[np.float64]:
+    r"""The split of :func:`_pointwise_grouped_loop` in O(N + K) for additive margins and finite returns.
+
+    With :math:`B_\ell = \log\sum_{j\in\mathcal{G}_\ell} e^{a_j} + o_\ell`, :math:`\log\Lambda_k = \operatorname{logsumexp}_{\ell>k}
+    B_\ell - o_k` (a suffix accumulation), and a lower trajectory :math:`j \in \mathcal{G}_\ell` gets
+    :math:`\sum_{k<\ell} 	frac12 \log P_k\, e^{a_j + o_\ell - o_k - \log\Lambda_k} = e^{a_j + o_\ell} S_\ell`, a prefix sum
+    :math:`S_\ell` over the groups above (its weights in each :math:`\Lambda_k` sum to one exactly, so no
+    normalisation per group is needed)."""
+    p = lik.preferences
+    items, off, o = p.group_items, p.group_offsets, p.margin_offsets
+    K = off.size - 1
+    N = a.size
+    ar = a[items]  # ranked order
+    starts = off[:-1]
+    mx = np.maximum.reduceat(ar, starts)
+    lse = mx + np.log(np.add.reduceat(np.exp(ar - np.repeat(mx, np.diff(off))), starts))
+    suffix = np.logaddexp.accumulate((lse + o)[::-1])[::-1]       # logsumexp_{l >= k} B_l
+    log_lam = suffix[1:] - o[:-1]                                 # k = 0 .. K-2
+    terms, own = _group_terms(a, items, off, log_lam)
+    shares = np.zeros(N)                                          # ranked order
+    # upper half: in proportion to -own within each group (equally where those sum to 0)
+    up = off[K - 1]
+    gid = np.repeat(np.arange(K - 1), np.diff(off)[:K - 1])
+    ws = np.add.reduceat(-own, starts[:K - 1])
+    half = 0.5 * terms
+    ok = (ws > 0) & np.isfinite(ws)
+    frac = np.where(ok[gid], -own / np.where(ok, ws, 1.0)[gid], 1.0 / np.diff(off)[:K - 1][gid])
+    shares[:up] += half[gid] * frac
+    # lower half: e^{a_j + o_l} * S_l, S_l = sum_{k<l} half_k e^{-o_k - log Lambda_k}, signs kept apart (log P_k <= 0
+    # up to rounding)
+    base = -o[:-1] - log_lam
+    with np.errstate(divide="ignore"):
+        neg = np.logaddexp.accumulate(np.log(np.maximum(-half, 0.0)) + base)
+        pos = np.logaddexp.accumulate(np.log(np.maximum(half, 0.0)) + base)
+    lo = off[1]
+    gl = np.repeat(np.arange(1, K), np.diff(off)[1:])             # group of each lower position
+    e = ar[lo:] + o[gl]
+    shares[lo:] += np.exp(e + pos[gl - 1]) - np.exp(e + neg[gl - 1])
+    out = np.zeros(N)
+    out[items] = shares
+    return out
+
+
+def _pointwise_grouped_loop(lik: "PreferenceLikelihood", a: NDArray[np.float64],
+                            margin_row: Callable[[int], NDArray[np.float64]]) -> NDArray[np.float64]:
+    r"""Every group's term split one by one (any margins, any returns): ``margin_row(k)`` is :math:`m_{k\cdot}`, (K,)."""
     from pbicrl.inference import likelihood_kernels as _kernels
     p = lik.preferences
-    items, off, M = p.group_items, p.group_offsets, p.group_margins
+    items, off = p.group_items, p.group_offsets
     K = off.size - 1
     out = np.zeros(a.size)
     lse = np.array([_logsumexp(a[items[off[l]:off[l + 1]]]) for l in range(K)])
     buf = np.empty((2, max(1, int(np.max(np.diff(off))))))
     for k in range(K - 1):
         lower = np.arange(k + 1, K)
-        log_lam = _logsumexp(lse[lower] + M[k, lower])
+        row = margin_row(k)
+        log_lam = _logsumexp(lse[lower] + row[lower])
         upper = items[off[k]:off[k + 1]]
         x = np.ascontiguousarray(a[upper] - log_lam)
         term = float(_kernels.group_term(x, buf))  # log P_k, as grouped_loglik computes it
@@ -149,7 +226,7 @@ def _pointwise_grouped(lik: "PreferenceLikelihood", a: NDArray[np.float64]) -> N
         out[upper] += _split(0.5 * term, -own)
         low = items[off[k + 1]:off[K]]
         group_of = np.repeat(lower, np.diff(off)[k + 1:])
-        out[low] += _split(0.5 * term, np.exp(a[low] + M[k, group_of] - log_lam))
+        out[low] += _split(0.5 * term, np.exp(a[low] + row[group_of] - log_lam))
     return out
 
 
@@ -259,9 +336,12 @@ def pointwise_log_likelihood(post: Any, lik: "PreferenceLikelihood", *, constrai
 
 
 # --------------------------------------------------------------------------------------- rebuilding a run's likelihood
-def _margins_matrix(extra: Mapping[str, Any], n_groups: int) -> NDArray[np.float64]:
-    """The K x K margins from ``extra["margins"]`` (``{"m12": ..}``, or ``{"m1_2": ..}`` for 10+ groups)."""
-    m = np.zeros((n_groups, n_groups))
+def _run_margins(extra: Mapping[str, Any], n_groups: int) -> "Margins":
+    """The margins of ``extra["margins"]`` (``{"m12": ..}``, ``{"m1_2": ..}`` for 10+ groups; beyond 64 groups
+    :meth:`Margins.as_dict` lists only the consecutive gaps of additive margins, read back as gaps: no K x K)."""
+    from pbicrl.inference.preferences import Margins
+
+    vals: dict[tuple[int, int], float] = {}
     for key, v in dict(extra.get("margins") or {}).items():
         hit = re.fullmatch(r"m(\d+)_(\d+)", key) or (re.fullmatch(r"m(\d)(\d)", key) if n_groups < 10 else None)
         if hit is None:
@@ -269,8 +349,11 @@ def _margins_matrix(extra: Mapping[str, Any], n_groups: int) -> NDArray[np.float
         k, l = int(hit.group(1)), int(hit.group(2))
         if not 1 <= k < l <= n_groups:
             raise ValueError(f"export: margin {key!r} does not fit the dataset's {n_groups} groups")
-        m[k - 1, l - 1] = float(v)
-    return m
+        vals[(k, l)] = float(v)
+    consecutive = len(vals) == n_groups - 1 and all(l == k + 1 for k, l in vals)
+    if not vals or (consecutive and n_groups > _AS_DICT_ALL_PAIRS):
+        return Margins.from_gaps([vals.get((k, k + 1), 0.0) for k in range(1, n_groups)])
+    return Margins.from_dict(vals, n_groups)
 
 
 def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood", "ConstraintSet | None"]:
@@ -311,7 +394,7 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
 
     wn = settings.get("nominal_weights")
     lik = PreferenceLikelihood.from_dataset(
-        dataset, margins=_margins_matrix(extra, dataset.n_groups),
+        dataset, margins=_run_margins(extra, dataset.n_groups),
         protocol="all" if hit is None else int(hit.group(1)), seed=int(recorded("pairs_seed", 0)),
         nominal_weights=None if wn is None else np.asarray(wn, dtype=np.float64),
         beta=recorded("beta", 1.0), power=recorded("power", 1.0), likelihood=kind)  # type: ignore[arg-type]

@@ -30,6 +30,7 @@ from pbicrl.runs import constraint_set_of
 __all__ = ["group_mean_returns", "point_weights", "relation_error", "tune_margins", "MarginTuning", "DEFAULT_GAP_GRID"]
 
 DEFAULT_GAP_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
+_MATRIX_MAX_GROUPS = 64  # MarginTuning.to_dict writes the K x K matrix up to this many groups (additive margins)
 
 
 def group_mean_returns(dataset: Dataset, weights: ArrayLike, extra_columns: NDArray | None = None) -> NDArray[np.float64]:
@@ -39,7 +40,11 @@ def group_mean_returns(dataset: Dataset, weights: ArrayLike, extra_columns: NDAr
     """
     F = dataset.mean_features if extra_columns is None else np.c_[dataset.mean_features, extra_columns]
     r = F @ np.asarray(weights, dtype=np.float64)
-    return np.array([r[dataset.group == k].mean() for k in dataset.group_labels])
+    labels = dataset.group_labels
+    rank = np.searchsorted(labels, dataset.group)  # one pass, not one per group (a total ranking has N groups)
+    inside = (rank < labels.size) & (labels[np.minimum(rank, labels.size - 1)] == dataset.group)
+    return np.bincount(rank[inside], weights=r[inside], minlength=labels.size) / np.bincount(rank[inside],
+                                                                                              minlength=labels.size)
 
 
 def relation_error(means: ArrayLike, relation: ArrayLike) -> tuple[float, NDArray[np.float64]]:
@@ -83,7 +88,9 @@ class MarginTuning:
     table: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"margins": self.margins.as_dict(), "margins_matrix": self.margins.matrix.tolist(),
+        # the K x K matrix only where it is small or not additive (as_dict then lists every m_kl anyway)
+        small = self.margins.n_groups <= _MATRIX_MAX_GROUPS or self.margins.offsets is None
+        return {"margins": self.margins.as_dict(), "margins_matrix": self.margins.matrix.tolist() if small else None,
                 "relation_target": self.relation_target.tolist(), "relation_achieved": self.relation_achieved.tolist(),
                 "error": self.error, "group_means": self.group_means.tolist(), "candidates": self.table}
 

@@ -71,6 +71,8 @@ def _add_infer(sub: Any) -> None:
     p.add_argument("--fs", dest="f_s", type=_positive_int,
                    help=f"paper sampler: sampling frequency f_s (default {_D.f_s})")
     p.add_argument("--p-flip", type=float, help=f"pbicrl sampler: probability of a flip move (default {_D.p_flip:g})")
+    p.add_argument("--p-joint", type=float, help="pbicrl/bpl samplers: probability in [0, 1) of a joint step of all "
+                   f"active weights (adapted covariance; default {_D.p_joint:g}; pays on large data)")
     p.add_argument("--prior", choices=["student-t", "flat", "normal"],
                    help="prior on penalty weights (default student-t: half-t on (-inf, 0], scale-aware)")
     p.add_argument("--prior-bounds", type=_floats,
@@ -105,7 +107,8 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         iterations=getattr(args, "iterations", None), burn_in=getattr(args, "burn_in", None),
         thin=getattr(args, "thin", None), chains=getattr(args, "chains", None), jobs=getattr(args, "jobs", None),
         seed=getattr(args, "seed", None), sigma=getattr(args, "sigma", None), f_s=getattr(args, "f_s", None),
-        p_flip=getattr(args, "p_flip", None), prior=None if prior is None else prior.replace("-", "_"),
+        p_flip=getattr(args, "p_flip", None), p_joint=getattr(args, "p_joint", None),
+        prior=None if prior is None else prior.replace("-", "_"),
         prior_low=None if bounds is None else bounds[0], prior_high=None if bounds is None else bounds[1],
         prior_scale=getattr(args, "prior_scale", None), prior_df=getattr(args, "prior_df", None),
         penalty_sign=args.penalty_sign, alpha=args.alpha, indicator_pi=getattr(args, "indicator_pi", None),
@@ -317,9 +320,9 @@ def build_parser() -> argparse.ArgumentParser:
 # Subcommands contributed by other subpackages (module -> the subcommands it adds); each module exposes
 # add_subcommands(subparsers) and must not import optional dependencies at module level.
 _EXTENSIONS: dict[str, tuple[str, ...]] = {
-    "pbicrl.experiments.sweep": ("sweep",), "pbicrl.experiments.reproduce": ("reproduce",),
+    "pbicrl.cli.sweep": ("sweep",), "pbicrl.cli.reproduce": ("reproduce",),
     "pbicrl.cli.posterior": ("diagnose", "plot", "export", "import"), "pbicrl.cli.envs": ("envs",),
-    "pbicrl.safe_rl": ("train-safe",), "pbicrl.cli.label": ("label", "suggest"),
+    "pbicrl.cli.train_safe": ("train-safe",), "pbicrl.cli.label": ("label", "suggest"),
 }
 
 # Top-level modules of optional dependencies -> the extra that installs them (pyproject.toml).
@@ -419,6 +422,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         if isinstance(exc, OutputExistsError):  # the library says overwrite=True; the command line has a flag
             msg = f"{exc.field}: {exc.path} already exists; choose another {exc.kind} or pass --overwrite"
+        if msg.startswith("out_dir: "):  # the library names its argument; the command line's is --out
+            msg = "out: " + msg[len("out_dir: "):]
         print(f"pbicrl: error: {msg}", file=sys.stderr)
         return 2
     except MemoryError:

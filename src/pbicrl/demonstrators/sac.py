@@ -31,11 +31,12 @@ import platform
 import shutil
 import signal
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+from pbicrl._atomic import atomic_dir, atomic_path, clean_stale_temporaries, write_text
 
 __all__ = ["SACConfig", "load_policy", "require_rl", "train_sac"]
 
@@ -77,17 +78,7 @@ def _versions() -> dict[str, str]:
 
 
 def _write_json_atomic(path: Path, obj: Any) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2, sort_keys=True)
-            fh.write("\n")
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; these files are meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
 
 
 def _is_policy_only(path: Path) -> bool:
@@ -102,7 +93,8 @@ def _is_policy_only(path: Path) -> bool:
 
 
 def _find_checkpoint(out_dir: Path) -> Path | None:
-    for name in (_CKPT, _CKPT_OLD):
+    clean_stale_temporaries(out_dir / _CKPT)  # a swap killed half-way: put the previous checkpoint back
+    for name in (_CKPT, _CKPT_OLD):  # checkpoint.old: the swap of earlier versions, killed half-way
         d = out_dir / name
         if (d / "state.json").is_file() and (d / "model.zip").is_file() and (d / "replay_buffer.pkl").is_file():
             return d
@@ -111,28 +103,18 @@ def _find_checkpoint(out_dir: Path) -> Path | None:
 
 def _save_checkpoint(model: Any, out_dir: Path, state: dict[str, Any]) -> None:
     """Write model + replay buffer + state into a temp dir, then swap it in."""
-    tmp = Path(tempfile.mkdtemp(dir=out_dir, prefix=".checkpoint."))
-    try:
+    with atomic_dir(out_dir / _CKPT, replace=True) as tmp:
         model.save(tmp / "model.zip")
         model.save_replay_buffer(tmp / "replay_buffer.pkl")
         _write_json_atomic(tmp / "state.json", state)
-        cur, old = out_dir / _CKPT, out_dir / _CKPT_OLD
-        if old.exists():
-            shutil.rmtree(old)
-        if cur.exists():
-            os.replace(cur, old)
-        os.replace(tmp, cur)
-        if old.exists():
-            shutil.rmtree(old)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    old = out_dir / _CKPT_OLD
+    if old.exists():  # left by an earlier version's swap; the new checkpoint is complete
+        shutil.rmtree(old)
 
 
 def _atomic_model_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(f".{path.stem}.tmp.zip")
-    obj.save(tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:  # same suffix (.zip), so SB3 writes exactly this file
+        obj.save(tmp)
 
 
 def load_policy(path: str | os.PathLike, device: str = "cpu") -> Any:

@@ -20,7 +20,7 @@ resumes where it stopped and retraining is never needed for the table. Results g
 ``--out/results.json`` and ``table.md``; with ``--docs DIR`` also ``DIR/figures/close_loop.png``,
 ``close_loop_point_mass_paths.png`` and ``close_loop_results.json``.
 
-Usage::
+Usage (the command line is :mod:`pbicrl.cli.close_loop`)::
 
     nice -n 10 python -m pbicrl.experiments.close_loop --out runs/close_loop --docs docs
 
@@ -29,17 +29,17 @@ Needs torch, gymnasium, mujoco and matplotlib (``pip install "pbicrl[rl,envs,plo
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from dataclasses import asdict, dataclass, field
+from importlib import import_module
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["CloseLoopConfig", "EnvPlan", "main", "run"]
+__all__ = ["CloseLoopConfig", "EnvPlan", "default_config", "run"]
 
 EVAL_SEED = 20_240_513  # reset seeds of the evaluation episodes (the same for every policy)
 
@@ -331,44 +331,15 @@ def plot_paths(paths: dict[str, list[np.ndarray]], path: Path, seed: int) -> Non
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command line: ``python -m pbicrl.experiments.close_loop --out DIR [--docs docs] ...``."""
-    p = argparse.ArgumentParser(prog="python -m pbicrl.experiments.close_loop", description=__doc__.splitlines()[0])
-    p.add_argument("--out", type=Path, required=True, help="cache and results directory")
-    p.add_argument("--docs", type=Path, help="also write figures and results JSON to DIR/figures")
-    p.add_argument("--pm-steps", type=int, default=100_000)
-    p.add_argument("--hc-steps", type=int, default=200_000)
-    p.add_argument("--seeds", type=int, default=3, help="point-mass training seeds")
-    p.add_argument("--hc-seeds", type=int, default=3, help="HalfCheetah training seeds")
-    p.add_argument("--pm-cost-limit", type=float, default=0.1)
-    p.add_argument("--hc-cost-limit", type=float, default=1.0)
-    p.add_argument("--no-hc-probability", action="store_true", help="skip the inferred-probability HalfCheetah policy")
-    p.add_argument("--episodes", type=int, default=100)
-    p.add_argument("--iterations", type=int, default=40_000)
-    p.add_argument("--envs", default="point_mass,halfcheetah")
-    a = p.parse_args(argv)
-    import warnings
+def __getattr__(name: str) -> Any:
+    if name == "main":  # the command line moved to pbicrl.cli.close_loop
+        from pbicrl.errors import warn
 
-    from pbicrl.errors import PbicrlWarning
-
-    warnings.simplefilter("ignore", PbicrlWarning)  # the runs' summary.json keep them
-    for name in ("pm_steps", "hc_steps", "seeds", "hc_seeds", "episodes", "iterations"):
-        if getattr(a, name) < 1:
-            p.error(f"--{name.replace('_', '-')}: must be >= 1")
-    cfg = default_config(a.pm_steps, a.hc_steps, a.seeds, a.hc_seeds, a.pm_cost_limit, a.hc_cost_limit,
-                         not a.no_hc_probability, a.episodes, a.iterations)
-    envs = [e.strip() for e in a.envs.split(",") if e.strip()]
-    bad = [e for e in envs if e not in ("point_mass", "halfcheetah")]
-    if bad or not envs:
-        p.error(f"--envs: expected point_mass and/or halfcheetah, got {a.envs!r}")
-    cfg = CloseLoopConfig(tuple(pl for pl in cfg.plans if pl.env in envs), cfg.episodes, cfg.iterations, cfg.chains)
-    try:
-        run(cfg, a.out, a.docs)
-    except KeyboardInterrupt:
-        print("close_loop: interrupted; checkpoints kept, rerun the same command to resume", file=sys.stderr)
-        return 130
-    return 0
+        warn("pbicrl.experiments.close_loop.main is deprecated and will be removed in pbicrl 0.3: "
+             "use pbicrl.cli.close_loop.main")
+        return import_module("pbicrl.cli.close_loop").main
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # `python -m pbicrl.experiments.close_loop` (the documented command) still works
+    sys.exit(import_module("pbicrl.cli.close_loop").main())

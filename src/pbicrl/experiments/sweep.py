@@ -31,12 +31,10 @@ running tasks are stopped, finished runs kept, ``sweep.json`` written.
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import math
 import os
-import signal
 import sys
 import time
 import tomllib
@@ -45,7 +43,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pbicrl.cli.argtypes import positive_int as _positive_int
 from pbicrl._atomic import write_json
 from pbicrl.experiments.tasks import (
     RESULT_FILE,
@@ -61,9 +58,11 @@ from pbicrl.experiments.tasks import (
     stale_reason,
 )
 
-__all__ = ["RunRecord", "SweepResult", "SweepSpec", "add_subcommands", "expand_grid", "load_sweep", "run_tasks"]
+__all__ = ["RunRecord", "SweepResult", "SweepSpec", "expand_grid", "fmt_value", "load_sweep", "plan_sweep",
+           "run_tasks", "MANIFEST"]
 
-_MANIFEST = "sweep.json"
+MANIFEST = "sweep.json"
+"""Name of the file, in the results root, that lists every run of a sweep."""
 
 
 # --------------------------------------------------------------------------------------------- records
@@ -127,7 +126,7 @@ class SweepResult:
 
     def save(self, path: str | os.PathLike[str] | None = None) -> Path:
         """Write ``sweep.json`` (default: in the results root) atomically."""
-        path = Path(path) if path is not None else self.root / _MANIFEST
+        path = Path(path) if path is not None else self.root / MANIFEST
         return write_json(path, self.to_dict(), default=str)
 
     def table(self, columns: Sequence[str] | None = None) -> str:
@@ -136,7 +135,8 @@ class SweepResult:
 
 
 # --------------------------------------------------------------------------------------------- formatting
-def _fmt(value: Any) -> str:
+def fmt_value(value: Any) -> str:
+    """A setting or headline number as a table cell (short; ``-`` for None)."""
     if value is None:
         return "-"
     if isinstance(value, bool):
@@ -148,9 +148,9 @@ def _fmt(value: Any) -> str:
     if isinstance(value, (list, tuple)):
         if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
             return "/".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in value)
-        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+        return "[" + ", ".join(fmt_value(v) for v in value) + "]"
     if isinstance(value, Mapping):
-        return "{" + ", ".join(f"{k}={_fmt(v)}" for k, v in value.items()) + "}"
+        return "{" + ", ".join(f"{k}={fmt_value(v)}" for k, v in value.items()) + "}"
     text = str(value)
     return text if len(text) <= 40 else "..." + text[-37:]
 
@@ -193,8 +193,8 @@ def _table(records: Sequence[RunRecord], columns: Sequence[str] | None = None) -
     rows = []
     for i, r in enumerate(records):
         res = r.result if isinstance(r.result, Mapping) else {}
-        rows.append([str(i), *(_fmt(r.settings.get(k)) for k in settings), r.status,
-                     "-" if r.runtime_s is None else f"{r.runtime_s:.1f}", *(_fmt(res.get(c)) for c in cols)])
+        rows.append([str(i), *(fmt_value(r.settings.get(k)) for k in settings), r.status,
+                     "-" if r.runtime_s is None else f"{r.runtime_s:.1f}", *(fmt_value(res.get(c)) for c in cols)])
     widths = [max(len(head[j]), *(len(row[j]) for row in rows)) if rows else len(head[j]) for j in range(len(head))]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)).rstrip(), "  ".join("-" * w for w in widths)]
     lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip() for row in rows]
@@ -254,7 +254,7 @@ def run_tasks(
         settings = _auto_settings(tasks)
     records = [RunRecord(t, dict(s)) for t, s in zip(tasks, settings)]
     result = SweepResult(root, records, executor.describe())
-    manifest_path = None if manifest is False else (root / _MANIFEST if manifest is True else Path(manifest))
+    manifest_path = None if manifest is False else (root / MANIFEST if manifest is True else Path(manifest))
 
     root.mkdir(parents=True, exist_ok=True)
     clean_stale_temp_dirs(root)
@@ -452,7 +452,7 @@ def load_sweep(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | No
         try:
             task = Task(kind, config, name=name)
         except TaskError as exc:
-            where = ", ".join(f"{k}={_fmt(v)}" for k, v in point.items())
+            where = ", ".join(f"{k}={fmt_value(v)}" for k, v in point.items())
             raise TaskError(f"{exc} (run {i}{': ' + where if where else ''})") from None
         if task.config_hash in seen:
             continue  # the same run reached twice (e.g. only an unhashed key varies): once is enough
@@ -472,87 +472,30 @@ def load_sweep(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | No
     return SweepSpec(tasks, settings, root, name or tasks[0].kind, path)
 
 
-# --------------------------------------------------------------------------------------------- command line
-def add_subcommands(sub: Any) -> None:
-    """``pbicrl sweep`` (hooked into :mod:`pbicrl.cli`)."""
-    p = sub.add_parser("sweep", help="run a grid of experiments (local process pool, or Ray); resumable",
-                       description="Expand a sweep file's [grid] over [base] and run every combination as an "
-                                   "independent task. Finished runs are recognised by their config hash and "
-                                   "skipped, so rerunning the same command resumes a killed sweep.")
-    p.add_argument("config", type=Path, help="sweep file (TOML with [base], [grid], optional [sweep] and [[runs]])")
-    p.add_argument("--executor", choices=["local", "ray", "serial"],
-                   help="local process pool (default), ray (default when RAY_ADDRESS is set), serial (in-process)")
-    p.add_argument("--workers", type=_positive_int,
-                   help="worker processes (local; default: one per core) or CPUs of a local Ray instance")
-    p.add_argument("--address", help="Ray cluster address (default: RAY_ADDRESS, else a local instance)")
-    p.add_argument("--out", type=Path, help="results root (default: [sweep] out, else runs/<config stem>)")
-    p.add_argument("--force", action="store_true", help="run finished runs again and replace their results")
-    p.add_argument("--dry-run", action="store_true", help="list the runs and whether they are finished; run nothing")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=_cmd_sweep)
+def plan_sweep(spec: SweepSpec, *, force: bool = False, progress: bool = True) -> SweepResult:
+    """What running ``spec`` would do, doing nothing: every run ``"cached"`` (finished, or an older cache
+    version's run that would be taken over) or ``"pending"``; ``progress`` prints the notes on older runs."""
+    older = adopt_older_runs(spec.out, dry_run=True)  # what a real run would take over; nothing moves
+    _note_older(older, spec.out, progress)
+    records = []
+    for task, point in zip(spec.tasks, spec.settings):
+        done = None if force else find_done(task, spec.out)
+        taken_over = not force and task.out_dir(spec.out) in older.adopted
+        rec = RunRecord(task, point, "cached" if done is not None or taken_over else "pending")
+        if done is not None:
+            saved = json.loads((done / RESULT_FILE).read_text())
+            rec.result, rec.runtime_s, rec.out_dir = saved.get("result"), saved.get("runtime_s"), str(done)
+        records.append(rec)
+    return SweepResult(spec.out, records, executor="dry run", older=older)
 
 
+def __getattr__(name: str) -> Any:
+    if name == "add_subcommands":  # the command line moved to pbicrl.cli.sweep
+        from importlib import import_module
 
+        from pbicrl.errors import warn
 
-def _cmd_sweep(args: argparse.Namespace) -> int:
-    from pbicrl.experiments.executors import make_executor
-
-    spec = load_sweep(args.config, out=args.out)
-    if args.dry_run:
-        older = adopt_older_runs(spec.out, dry_run=True)  # what a real run would take over; nothing moves
-        _note_older(older, spec.out, True)
-        records = []
-        for task, point in zip(spec.tasks, spec.settings):
-            done = None if args.force else find_done(task, spec.out)
-            taken_over = not args.force and task.out_dir(spec.out) in older.adopted
-            rec = RunRecord(task, point, "cached" if done is not None or taken_over else "pending")
-            if done is not None:
-                saved = json.loads((done / RESULT_FILE).read_text())
-                rec.result, rec.runtime_s, rec.out_dir = saved.get("result"), saved.get("runtime_s"), str(done)
-            records.append(rec)
-        print(_table(records))
-        n_done = sum(r.status == "cached" for r in records)
-        print(f"{len(records)} runs in {spec.out}: {n_done} finished, {len(records) - n_done} to run")
-        return 0
-    executor = make_executor(args.executor, args.workers, address=args.address)
-    print(f"sweep {args.config}: {len(spec.tasks)} runs -> {spec.out} on {executor.describe()}", file=sys.stderr)
-    # SIGTERM (a scheduler's or `kill`'s) stops the sweep as Ctrl-C does: workers stopped, sweep.json written.
-    previous = _on_sigterm(_raise_interrupt)
-    try:
-        result = run_tasks(spec.tasks, spec.out, executor, settings=spec.settings, force=args.force,
-                           progress=not args.no_progress)
-    except KeyboardInterrupt:
-        print(f"pbicrl: interrupted; finished runs are kept in {spec.out}; run the same command to resume",
-              file=sys.stderr)
-        return 130
-    finally:
-        _on_sigterm(previous)
-    print(result.table())
-    c = result.counts()
-    print(f"{c['total']} runs: {c['ran']} ran, {c['cached']} already finished, {c['failed']} failed; "
-          f"{result.wall_s:.1f} s on {result.executor}; details in {spec.out / _MANIFEST}")
-    if result.failed:
-        print("failures:", file=sys.stderr)
-        for r in result.failed:
-            print(f"  {r.task.dir_name} ({', '.join(f'{k}={_fmt(v)}' for k, v in r.settings.items())}): {r.error}",
-                  file=sys.stderr)
-            if os.environ.get("PBICRL_DEBUG") and r.traceback:
-                print(r.traceback, file=sys.stderr)
-        print(f"(tracebacks in {spec.out / _MANIFEST}; fix the cause and run the same command: only the failed and "
-              "missing runs run again)", file=sys.stderr)
-        return 1
-    return 0
-
-
-def _raise_interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
-def _on_sigterm(handler: Any) -> Any:
-    """Install ``handler`` for SIGTERM (main thread only); returns the previous one (None if unchanged)."""
-    if handler is None:
-        return None
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except (ValueError, OSError):  # not the main thread: leave the default
-        return None
+        warn("pbicrl.experiments.sweep.add_subcommands is deprecated and will be removed in pbicrl 0.3: "
+             "use pbicrl.cli.sweep.add_subcommands")
+        return import_module("pbicrl.cli.sweep").add_subcommands
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -29,6 +29,11 @@ needing the registry. Registering a new kind::
         return {"score": 0.93}
 
     register_task("my-study", run_my_study, columns=("score",))
+
+This module is the engine (the task, its hash, results on disk, running one task, adopting older runs); the
+registry of kinds and the worker's environment are in :mod:`pbicrl.experiments.registry`, the built-in kinds
+(``infer``, ``reproduce-icl``, ``selftest``) in :mod:`pbicrl.experiments.kinds`. Their public names are
+re-exported here, where they were before the split.
 """
 
 from __future__ import annotations
@@ -43,18 +48,24 @@ import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
-from importlib import import_module
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Callable, Mapping
 
 from pbicrl._atomic import apply_mode, fsync_tree, pid_alive, write_json
+from pbicrl.experiments.kinds import (INFER_EXTRA, file_sha256, infer_config_of_reproduce_run, infer_result,
+                                      prepare_data, prepare_infer, rename_v2, run_infer, run_selftest,
+                                      summarize_infer)
+from pbicrl.experiments.registry import (TaskError, TaskKind, get_task_kind, import_target, in_task_worker,
+                                         register_task, task_jobs, task_kinds, task_worker)
 
 __all__ = [
     "TASK_FORMAT", "CACHE_VERSION", "RESULT_FILE", "Task", "TaskKind", "TaskError", "register_task", "get_task_kind",
     "task_kinds", "canonical_json", "in_task_worker", "task_jobs", "task_worker", "execute_task", "finalize_task",
     "write_shipped", "find_done", "stale_reason", "read_result", "load_result", "clean_stale_temp_dirs", "started_hashes",
-    "adopt_older_runs", "OlderRuns", "file_sha256", "prepare_data", "run_infer", "prepare_infer", "summarize_infer",
-    "infer_result", "infer_config_of_reproduce_run", "INFER_EXTRA", "run_selftest",
+    "adopt_older_runs", "OlderRuns", "result_record", "error_text", "import_target",
+    # the built-in kinds (pbicrl.experiments.kinds), re-exported where they were before the split
+    "file_sha256", "prepare_data", "run_infer", "prepare_infer", "summarize_infer", "infer_result",
+    "infer_config_of_reproduce_run", "rename_v2", "INFER_EXTRA", "run_selftest",
 ]
 
 TASK_FORMAT = 1
@@ -75,129 +86,6 @@ Version 2: runs cached before defaults were recorded with each run. Version 3: o
 
 RESULT_FILE = "result.json"
 _TMP_PREFIX = ".tmp-"
-_WORKER_ENV = "PBICRL_TASK_WORKER"
-_JOBS_ENV = "PBICRL_TASK_JOBS"
-
-
-class TaskError(ValueError):
-    """Invalid task description (unknown kind, bad config); the message names the key."""
-
-
-# --------------------------------------------------------------------------------------------- registry
-@dataclass(frozen=True)
-class TaskKind:
-    """A registered kind of task.
-
-    Attributes
-    ----------
-    name : str
-        Name used in ``Task.kind`` and in sweep files (``kind = "infer"``).
-    target : str
-        ``"module:function"`` of ``run(config, out_dir) -> dict``; imported by the worker.
-    prepare : callable, optional
-        ``prepare(config) -> config``: validates the config (errors name the key) and may normalise it or
-        fill in defaults; it runs when the :class:`Task` is created (in the parent, before anything is
-        launched) and must be idempotent.
-    unhashed : tuple of str
-        Config keys that do not change the results (e.g. a data path whose content is hashed separately,
-        or a number of worker processes); excluded from the hash.
-    path_keys : tuple of str
-        Config keys that hold file paths; a sweep file resolves them relative to its own directory.
-    columns : tuple of str
-        Keys of the returned dict to show in summary tables (default: every scalar value).
-    defaults : callable, optional
-        ``defaults() -> dict`` of the values a missing key stands for. Entries equal to their default are
-        left out of the hash, so a kind can gain new settings (with defaults that keep the old behaviour)
-        without invalidating finished runs.
-    version : int
-        Part of the hash: bump it when a change makes old results of this kind wrong (e.g. a new default).
-    summarize : callable, optional
-        ``summarize(config, out_dir) -> dict``: the headline numbers of a finished run computed again from its
-        files; used when a run of an older cache version is adopted (:func:`adopt_older_runs`). Without it the
-        stored numbers are kept.
-    """
-
-    name: str
-    target: str
-    prepare: Callable[[dict], dict] | None = None
-    unhashed: tuple[str, ...] = ()
-    path_keys: tuple[str, ...] = ()
-    columns: tuple[str, ...] = ()
-    defaults: Callable[[], dict] | None = None
-    version: int = 1
-    summarize: Callable[[dict, Path], dict] | None = None
-
-
-_REGISTRY: dict[str, TaskKind] = {}
-
-
-def _target_of(run: Callable[..., Any] | str) -> str:
-    if isinstance(run, str):
-        if ":" not in run:
-            raise TaskError(f"task target {run!r}: expected 'package.module:function'")
-        return run
-    module, qualname = getattr(run, "__module__", None), getattr(run, "__qualname__", "")
-    if not module or "<locals>" in qualname or "<lambda>" in qualname or module == "__main__":
-        raise TaskError(f"task function {qualname or run!r}: must be a top-level function of an importable module "
-                        "(workers import it by name)")
-    return f"{module}:{qualname}"
-
-
-def register_task(name: str, run: Callable[[dict, Path], dict] | str, *, prepare: Callable[[dict], dict] | None = None,
-                  unhashed: Iterable[str] = (), path_keys: Iterable[str] = (), columns: Iterable[str] = (),
-                  defaults: Callable[[], dict] | None = None, version: int = 1,
-                  summarize: Callable[[dict, Path], dict] | None = None, replace: bool = False) -> TaskKind:
-    """Register a task kind (see :class:`TaskKind`); returns it.
-
-    Parameters
-    ----------
-    name : str
-        Kind name; letters, digits, ``-``, ``_`` and ``.``.
-    run : callable or str
-        Top-level function ``run(config, out_dir) -> dict`` or its ``"module:function"`` path.
-    prepare, unhashed, path_keys, columns, defaults, version, summarize
-        See :class:`TaskKind`.
-    replace : bool
-        Allow re-registering an existing name with a different target.
-    """
-    if not name or not all(ch.isalnum() or ch in "-_." for ch in name):
-        raise TaskError(f"task kind {name!r}: use letters, digits, '-', '_' and '.'")
-    kind = TaskKind(name, _target_of(run), prepare, tuple(unhashed), tuple(path_keys), tuple(columns), defaults,
-                    int(version), summarize)
-    old = _REGISTRY.get(name)
-    if old is not None and old.target != kind.target and not replace:
-        raise TaskError(f"task kind {name!r} is already registered to {old.target}; pass replace=True")
-    _REGISTRY[name] = kind
-    return kind
-
-
-# Kinds defined in modules that are imported only when such a task is requested (keeps `pbicrl` import light).
-_LAZY_KINDS: dict[str, str] = {}
-
-
-def get_task_kind(kind: str) -> TaskKind:
-    """The registered :class:`TaskKind` of ``kind``, or an ad-hoc one for a ``"module:function"`` path."""
-    if kind in _REGISTRY:
-        return _REGISTRY[kind]
-    if kind in _LAZY_KINDS:
-        import_module(_LAZY_KINDS[kind])
-        if kind in _REGISTRY:
-            return _REGISTRY[kind]
-    if ":" in kind:
-        try:  # fail here, before anything is launched, rather than in every worker
-            _import_target(kind)
-        except (ImportError, AttributeError, ValueError) as exc:
-            raise TaskError(f"kind: cannot import {kind!r} ({type(exc).__name__}: {exc})") from None
-        return TaskKind(kind, kind)
-    known = ", ".join(sorted(set(_REGISTRY) | set(_LAZY_KINDS)))
-    raise TaskError(f"kind: unknown task kind {kind!r}; known kinds are {known} "
-                    "(or give an importable 'package.module:function')")
-
-
-def task_kinds() -> list[str]:
-    """Names of all registered task kinds."""
-    return sorted(set(_REGISTRY) | set(_LAZY_KINDS))
-
 
 # --------------------------------------------------------------------------------------------- the task
 def _plain(value: Any, where: str) -> Any:
@@ -434,7 +322,7 @@ def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s:
     kept and this copy discarded, unless ``force``.
     """
     run_dir = work / "run"
-    (run_dir / RESULT_FILE).write_text(json.dumps(_record(task, result, runtime_s), indent=2) + "\n")
+    (run_dir / RESULT_FILE).write_text(json.dumps(result_record(task, result, runtime_s), indent=2) + "\n")
     fsync_tree(run_dir)
     apply_mode(run_dir, directory=True)  # mkdtemp makes 0700; the results should be as readable as any new directory
     final = task.out_dir(root)
@@ -453,7 +341,7 @@ def finalize_task(task: Task, root: Path, work: Path, result: Any, *, runtime_s:
     return final
 
 
-def _record(task: Task, result: Any, runtime_s: float, **more: Any) -> dict[str, Any]:
+def result_record(task: Task, result: Any, runtime_s: float, **more: Any) -> dict[str, Any]:
     """The ``result.json`` record of a finished run of ``task``."""
     return {
         "format": TASK_FORMAT, "cache_version": CACHE_VERSION, "kind": task.kind, "target": task.target,
@@ -463,49 +351,6 @@ def _record(task: Task, result: Any, runtime_s: float, **more: Any) -> dict[str,
     } | more
 
 
-def in_task_worker() -> bool:
-    """True inside a task run by an executor: the executor owns the cores, so nested parallelism (MCMC
-    chains, torch threads) must use no more than :func:`task_jobs` processes or threads."""
-    return os.environ.get(_WORKER_ENV) == "1"
-
-
-def task_jobs() -> int:
-    """Processes (or threads) a task may use for its own parallel work: 1, unless the executor has more
-    cores than tasks (then its share of them). Results must not depend on it."""
-    try:
-        return max(1, int(os.environ.get(_JOBS_ENV, "1")))
-    except ValueError:
-        return 1
-
-
-class task_worker:
-    """Context manager that marks the current process as a task worker with ``jobs`` cores (see
-    :func:`in_task_worker`, :func:`task_jobs`)."""
-
-    def __init__(self, jobs: int = 1) -> None:
-        self.jobs = max(1, int(jobs))
-
-    def __enter__(self) -> "task_worker":
-        self._old = {k: os.environ.get(k) for k in (_WORKER_ENV, _JOBS_ENV)}
-        os.environ[_WORKER_ENV] = "1"
-        os.environ[_JOBS_ENV] = str(self.jobs)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for k, v in self._old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def _import_target(target: str) -> Callable[[dict, Path], Any]:
-    module, _, qualname = target.partition(":")
-    obj: Any = import_module(module)
-    for part in qualname.split("."):
-        obj = getattr(obj, part)
-    return obj
-
 
 def _outcome(task: Task, status: str, *, out_dir: Path | None = None, result: Any = None, error: str | None = None,
              tb: str | None = None, runtime_s: float = 0.0) -> dict[str, Any]:
@@ -513,7 +358,8 @@ def _outcome(task: Task, status: str, *, out_dir: Path | None = None, result: An
             "result": result, "error": error, "traceback": tb, "runtime_s": runtime_s}
 
 
-def _error_text(exc: BaseException) -> str:
+def error_text(exc: BaseException) -> str:
+    """``"ExceptionType: first line of the message"`` (what a failed run's outcome and reports show)."""
     msg = str(exc).strip()
     return f"{type(exc).__name__}: {msg.splitlines()[0]}" if msg else type(exc).__name__
 
@@ -537,7 +383,7 @@ def execute_task(task: Task, root: str | os.PathLike[str] | None, *, force: bool
     try:
         (work / "run").mkdir()
         with task_worker(jobs):
-            fn = _import_target(task.target)
+            fn = import_target(task.target)
             result = fn(dict(task.config), work / "run")
         result = _plain(result if result is not None else {}, "result")
         runtime = time.perf_counter() - t0
@@ -550,7 +396,7 @@ def execute_task(task: Task, root: str | os.PathLike[str] | None, *, force: bool
         final = finalize_task(task, Path(root), work, result, runtime_s=runtime, force=force)  # type: ignore[arg-type]
         return _outcome(task, "ran", out_dir=final, result=result, runtime_s=runtime)
     except Exception as exc:  # a failing run is reported, not raised: the sweep goes on
-        return _outcome(task, "failed", error=_error_text(exc), tb=traceback.format_exc(),
+        return _outcome(task, "failed", error=error_text(exc), tb=traceback.format_exc(),
                         runtime_s=time.perf_counter() - t0)
     finally:
         if work.exists():
@@ -578,256 +424,7 @@ def write_shipped(task: Task, root: str | os.PathLike[str], outcome: dict[str, A
     return outcome
 
 
-# --------------------------------------------------------------------------------------------- kind "infer"
-_sha_cache: dict[tuple[str, int, int], str] = {}
-
-INFER_EXTRA: dict[str, Any] = {"demos_per_group": None, "demos_seed": 0}
-"""Settings of the ``infer`` kind besides ``data`` and the :class:`~pbicrl.config.InferConfig` fields: subsample
-``demos_per_group`` demonstrations per group (default all) with seed ``demos_seed``."""
-
-
-def _resolve_data(data: str) -> Path:
-    from pbicrl.inference.data import DatasetNotFoundError, resolve_dataset_path
-
-    try:
-        return resolve_dataset_path(data)
-    except DatasetNotFoundError as exc:
-        raise TaskError(str(exc)) from None
-
-
-def file_sha256(path: str | os.PathLike[str]) -> str:
-    """SHA-256 (hex) of a file's content, cached per (path, size, modification time) in this process."""
-    path = Path(path)
-    st = path.stat()
-    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
-    if key not in _sha_cache:
-        h = hashlib.sha256()
-        with open(path, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        _sha_cache[key] = h.hexdigest()
-    return _sha_cache[key]
-
-
-def prepare_data(config: dict, *, allow: tuple[str, ...] = ()) -> dict:
-    """Resolve a config's ``data`` (a dataset file or a shipped name) and record its content hash.
-
-    Returns a copy with ``data`` (an existing file by absolute path, so that workers started elsewhere find
-    it; a shipped dataset by name) and ``data_sha256``; the task kind hashes the content, not the path, so
-    moving files keeps finished runs. ``allow`` lists values of ``data`` that name no file (e.g. ICL's
-    ``"scripted"``); they pass unchanged.
-    """
-    config = dict(config)
-    if "data" not in config:
-        raise TaskError("data: missing; give a dataset .npz path or the name of a shipped dataset")
-    data = config.pop("data")
-    config.pop("data_sha256", None)
-    if not isinstance(data, str):
-        raise TaskError(f"data: expected a path or a dataset name, got {data!r}")
-    if data in allow:
-        return {"data": data} | config
-    path = _resolve_data(data)
-    if not path.is_file():
-        raise TaskError(f"data: {data}: not a regular file")
-    return {"data": str(path.resolve()) if Path(data).expanduser().is_file() else data,
-            "data_sha256": file_sha256(path)} | config
-
-
-def prepare_infer(config: dict) -> dict:
-    """Validate an ``infer`` config and fill in every default (so that equivalent configs hash alike).
-
-    Keys: ``data`` (a dataset .npz or the name of a shipped dataset), every :class:`~pbicrl.config.InferConfig`
-    field (deprecated names such as ``method`` are renamed, with a :class:`~pbicrl.errors.PbicrlWarning`,
-    before hashing: the old and the new name are the same run), and :data:`INFER_EXTRA`. The dataset's
-    content is hashed (``data_sha256``); its path is not, so moving files keeps finished runs.
-    """
-    from pbicrl.config import ConfigError, canonical_names, check_setting
-
-    defaults = _infer_fields()
-    try:
-        config = canonical_names(config, where="infer config key", stacklevel=4)
-    except ConfigError as exc:
-        raise TaskError(str(exc)) from None
-    out = prepare_data(config)
-    for key, value in config.items():
-        if key in ("data", "data_sha256"):
-            continue
-        if key in INFER_EXTRA:
-            low = 1 if key == "demos_per_group" else 0
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < low):
-                raise TaskError(f"{key}: expected a {'positive' if low else 'non-negative'} integer, got {value!r}")
-            continue
-        if key not in defaults:
-            known = ", ".join(sorted({"data", *defaults, *INFER_EXTRA}))
-            raise TaskError(f"infer config key '{key}': unknown; known keys are {known}")
-        try:
-            check_setting(key, value, where="infer config")
-        except ConfigError as exc:
-            raise TaskError(str(exc)) from None
-    given = {k: v for k, v in config.items() if k not in ("data", "data_sha256") and v is not None}  # None: default
-    return {"data": out["data"], "data_sha256": out["data_sha256"]} | defaults | INFER_EXTRA | given
-
-
-def _infer_fields() -> dict[str, Any]:
-    from pbicrl.config import InferConfig
-
-    return InferConfig.defaults()
-
-
-def _infer_defaults() -> dict[str, Any]:
-    return _infer_fields() | INFER_EXTRA
-
-
-def _infer_dataset(config: Mapping[str, Any]) -> tuple[Any, Path, str]:
-    """The (subsampled) dataset of an ``infer`` config, its path and content hash (checked against the config)."""
-    from pbicrl.inference.data import load_dataset
-
-    path = _resolve_data(config["data"])
-    digest = file_sha256(path)
-    if config.get("data_sha256") not in (None, digest):
-        raise TaskError(f"data: {path} changed since the task was created (content hash differs)")
-    ds = load_dataset(path)
-    if config.get("demos_per_group") is not None:
-        ds = ds.sample_per_group(int(config["demos_per_group"]), seed=int(config.get("demos_seed", 0)))
-    return ds, path, digest
-
-
-def run_infer(config: dict, out_dir: Path) -> dict[str, Any]:
-    """Task kind ``infer`` (sweeps and ``pbicrl reproduce``): :func:`pbicrl.api.infer_from_config` on a dataset.
-
-    Writes ``summary.json`` + ``chains.npz``. Inside an executor the chains use :func:`task_jobs` processes
-    (usually 1: the executor already uses every core); the draws do not depend on it. The posterior's
-    warnings are not printed (one run of many) but returned under ``warnings``. Returns
-    :func:`infer_result`.
-    """
-    import warnings
-    from dataclasses import replace
-
-    from pbicrl.api import infer_from_config
-    from pbicrl.config import InferConfig
-    from pbicrl.errors import PbicrlWarning
-
-    ds, path, digest = _infer_dataset(config)
-    cfg = InferConfig(**{k: config[k] for k in _infer_fields() if k in config})
-    if in_task_worker():
-        cfg = replace(cfg, jobs=task_jobs())
-    with warnings.catch_warnings():  # one run of many: the result lists them, the terminal does not repeat them
-        warnings.simplefilter("ignore", PbicrlWarning)
-        post = infer_from_config(ds, cfg, progress=False)
-    post.extra["data"]["path"] = str(path)
-    post.extra["data"]["sha256"] = digest
-    post.save(out_dir, overwrite=True)
-    return infer_result(post, ds)
-
-
-def summarize_infer(config: dict, out_dir: Path) -> dict[str, Any]:
-    """:func:`infer_result` of a finished ``infer`` run read back from its directory (adopting older runs)."""
-    from pbicrl.inference.results import Posterior
-
-    ds, _, _ = _infer_dataset(config)
-    return infer_result(Posterior.load(out_dir, issue_warnings=False), ds)
-
-
-def infer_result(post: Any, dataset: Any) -> dict[str, Any]:
-    """Headline numbers of an ``infer`` run, per feature in ``features`` order.
-
-    ``p_constraint``, MAP and mean effective penalties, the selected set's effective penalties (conditional
-    medians, 0 off the set), indicators and parameters (``None`` where off), the group-mean returns under the
-    MAP and the selected weights, 90% intervals of the parameters while on, the identified parameter
-    intervals, ``map_log_posterior``, the largest finite R-hat, the acceptance rate, the number of pairs and
-    the posterior's warnings. Nothing here depends on the machine (the run's time is in ``result.json``'s
-    ``runtime_s``), so every executor gives the same numbers.
-    """
-    import numpy as np
-
-    from pbicrl.inference.draws import SELECTION_THRESHOLD
-    from pbicrl.analysis.margins import group_mean_returns, point_weights
-
-    def finite_or_none(x: Any) -> list[float | None]:
-        return [None if not np.isfinite(v) else float(v) for v in np.atleast_1d(x)]
-
-    w, cols = point_weights(post, dataset, "map")
-    w_sel, cols_sel = point_weights(post, dataset, "selected")
-    sel_eff, sel_theta = post.point_estimate("selected")
-    pc = post.parameter_conditional()
-    rhat = [r for r in post.rhat()["effective_penalty"] if math.isfinite(r)]
-    return {
-        "features": list(post.feature_names),
-        "p_constraint": [float(x) for x in post.p_constraint],
-        "map_effective_penalty": [float(x) for x in post.map_effective_penalty],
-        "map_indicators": np.asarray(post.map_indicators).astype(int).tolist(),
-        "map_parameters": finite_or_none(post.map_parameters_active),
-        "mean_effective_penalty": [float(x) for x in post.mean_effective_penalty],
-        "selected_effective_penalty": [float(x) for x in np.nan_to_num(sel_eff)],
-        "selected_indicators": (post.p_constraint > SELECTION_THRESHOLD).astype(int).tolist(),
-        "selected_parameters": finite_or_none(sel_theta),
-        "group_means_map": group_mean_returns(dataset, w, cols).tolist(),
-        "group_means_selected": group_mean_returns(dataset, w_sel, cols_sel).tolist(),
-        "parameter_ci90": [list(pair) for pair in zip(finite_or_none(pc["low"]), finite_or_none(pc["high"]))],
-        "identified_parameters": dict((post.identified or {}).get("parameters") or {}),
-        "map_log_posterior": float(post.map_log_posterior),
-        "max_rhat": max(rhat) if rhat else None,
-        "acceptance": float(post.acceptance_rate()["overall"]),
-        "n_pairs": int(post.settings.get("n_pairs") or 0),
-        "warnings": list(post.warnings()),
-    }
-
-
-register_task("infer", run_infer, prepare=prepare_infer, unhashed=("data", "jobs"), path_keys=("data",),
-              columns=("p_constraint", "map_effective_penalty", "max_rhat"), defaults=_infer_defaults,
-              summarize=summarize_infer)
-
-
-def _prepare_icl(config: dict) -> dict:
-    """``reproduce-icl``: the dataset's content is hashed, not its path (as for ``infer``)."""
-    return prepare_data(config, allow=("scripted",))
-
-
-register_task("reproduce-icl", "pbicrl.baselines.icl:run_icl_task", prepare=_prepare_icl,
-              unhashed=("data", "checkpoint_dir"), path_keys=("data",))
-
-
-# --------------------------------------------------------------------------------------------- older cache versions
-def infer_config_of_reproduce_run(config: Mapping[str, Any]) -> dict[str, Any]:
-    """A version-2 ``reproduce-run`` config in the ``infer`` kind's names, for the same draws.
-
-    ``reproduce-run`` ran :func:`pbicrl.api.infer` with one chain, the pairwise likelihood and a flat prior on
-    [-1000, 1000] of both signs unless told otherwise; ``sample_seed`` seeded both the subsample and the pairs;
-    ``label``, ``n`` and ``wall`` were bookkeeping of the report.
-    """
-    c = dict(config)
-    likelihood = c.get("likelihood", "pairwise")
-    out: dict[str, Any] = {
-        "data": c["dataset"], "data_sha256": c.get("dataset_sha256"), "demos_per_group": c.get("n_per_group") or None,
-        "demos_seed": int(c.get("sample_seed", 0)), "pairs_seed": int(c.get("sample_seed", 0)),
-        "sampler": c["method"], "margins": c.get("margins"), "iterations": int(c["iterations"]),
-        "chains": int(c.get("chains", 1)), "seed": int(c["seed"]), "sigma": float(c.get("sigma") or 0.1),
-        "f_s": int(c.get("f_s", 4)), "init_range": list(c.get("init_range") or (-30.0, -1.0)),
-        "sigma_theta": float(c.get("sigma_theta", 0.5)), "init_scale": float(c.get("init_scale", 1.0)),
-        "constraints": c.get("constraints"), "candidates": c.get("candidates"),
-        "nominal_weights": c.get("nominal_weights"), "likelihood": likelihood,
-        "pairs": c.get("pairs", "all") if likelihood == "pairwise" else None,
-    }
-    prior = c.get("prior", "flat")
-    if prior == "improper":
-        out |= {"prior": "improper", "penalty_sign": "any"}
-    elif prior != "default":
-        low, high = c.get("prior_bounds", (-1000.0, 1000.0))
-        out |= {"prior": prior, "prior_low": float(low), "prior_high": float(high), "penalty_sign": "any"}
-    return {k: v for k, v in out.items() if v is not None}  # None: the default
-
-
-def _rename_v2(kind: str, config: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
-    """Cache version 2 -> 3: settings renamed, no numbers changed."""
-    if kind == "reproduce-run":
-        return "infer", infer_config_of_reproduce_run(config)
-    if kind == "reproduce-icl":
-        names = {"dataset": "data", "dataset_sha256": "data_sha256", "sample_seed": "demos_seed"}
-        return kind, {names.get(k, k): v for k, v in config.items()}
-    return kind, dict(config)
-
-
-_RENAMES: dict[int, Callable[[str, Mapping[str, Any]], tuple[str, dict[str, Any]]]] = {2: _rename_v2}
+_RENAMES: dict[int, Callable[[str, Mapping[str, Any]], tuple[str, dict[str, Any]]]] = {2: rename_v2}
 """Cache versions whose successor only renamed settings: version -> (kind, config) in the next version's names."""
 
 
@@ -905,7 +502,7 @@ def adopt_older_runs(root: str | os.PathLike[str], *, dry_run: bool = False) -> 
                 continue
             result = summarize(dict(task.config), d) if summarize is not None else record.get("result")
         except Exception as exc:  # TaskError or unreadable files: keep it, say why
-            out.not_reused.append((d, str(exc) if isinstance(exc, TaskError) else _error_text(exc)))
+            out.not_reused.append((d, str(exc) if isinstance(exc, TaskError) else error_text(exc)))
             continue
         target = task.out_dir(root)
         if target != d:
@@ -914,7 +511,7 @@ def adopt_older_runs(root: str | os.PathLike[str], *, dry_run: bool = False) -> 
             except OSError as exc:
                 out.not_reused.append((d, f"cannot be renamed to {target.name} ({exc.strerror or exc})"))
                 continue
-        write_json(target / RESULT_FILE, _record(task, result, float(record.get("runtime_s") or 0.0),
+        write_json(target / RESULT_FILE, result_record(task, result, float(record.get("runtime_s") or 0.0),
                                                  finished_at=record.get("finished_at"), host=record.get("host"),
                                                  adopted_from={"cache_version": record.get("cache_version", 1),
                                                                "kind": record.get("kind"),
@@ -923,26 +520,3 @@ def adopt_older_runs(root: str | os.PathLike[str], *, dry_run: bool = False) -> 
     return out
 
 
-# --------------------------------------------------------------------------------------------- kind "selftest"
-def run_selftest(config: dict, out_dir: Path) -> dict[str, Any]:
-    """Task kind ``selftest``: checks an executor without heavy work.
-
-    Config: ``value`` (any JSON, echoed back), ``sleep`` (seconds, default 0), ``fail`` (raise with this
-    message if set), ``crash`` (end the worker process abruptly, as a crash or an out-of-memory kill would;
-    only in a child process). Writes ``value.json`` and returns ``{"value": ..., "in_worker": ...}``.
-    """
-    if config.get("sleep"):
-        time.sleep(float(config["sleep"]))
-    if config.get("fail"):
-        raise RuntimeError(str(config["fail"]))
-    if config.get("crash"):
-        import multiprocessing
-
-        if multiprocessing.parent_process() is None:
-            raise RuntimeError("crash: only simulated in a pool worker process")
-        os._exit(70)
-    (out_dir / "value.json").write_text(json.dumps(config.get("value")) + "\n")
-    return {"value": config.get("value"), "in_worker": in_task_worker()}
-
-
-register_task("selftest", run_selftest)

@@ -33,13 +33,13 @@ from typing import Any, Literal, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pbicrl.inference.codes import FAMILY_CODES
 from pbicrl.inference.data import Dataset
 
 __all__ = ["Constraint", "AxisHalfspace", "Halfspace", "Box", "Ball", "ConstraintError", "ConstraintSet",
            "constraint_from_dict", "FAMILIES"]
 
-FAMILIES = ("axis_halfspace", "halfspace", "box", "ball")
-_CODE = {name: i for i, name in enumerate(FAMILIES)}
+FAMILIES = tuple(FAMILY_CODES)  # the codes themselves live in pbicrl.inference.codes
 
 
 class ConstraintError(ValueError):
@@ -334,7 +334,7 @@ class ConstraintSet:
         """Flat arrays for :mod:`pbicrl.inference.samplers._mcmc`."""
         ds = self.dataset
         M = self.n_constraints
-        fam = np.array([_CODE[c.family] for c in self.constraints], dtype=np.int64)
+        fam = np.array([FAMILY_CODES[c.family] for c in self.constraints], dtype=np.int64)
         sign = np.array([(-1 if getattr(c, "direction", ">=") == "<=" else 1) for c in self.constraints], dtype=np.int64)
         dims_off = np.concatenate([[0], np.cumsum([len(c.dims) for c in self.constraints])]).astype(np.int64)
         dims = np.concatenate([np.array(c.dims, dtype=np.int64) for c in self.constraints])

@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbicrl.inference import likelihood_kernels as _kernels
+from pbicrl.inference.codes import LIKELIHOODS as LIKELIHOOD_CODES
 from pbicrl.inference.data import Dataset
 from pbicrl.inference.preferences import RANKED_MIN_GROUPS, Margins, PreferenceError, Preferences
 
@@ -51,7 +52,6 @@ __all__ = ["PreferenceLikelihood", "log_likelihood", "log_likelihood_numpy", "sc
            "LIKELIHOODS"]
 
 LIKELIHOODS = ("pairwise", "grouped")
-_KIND_CODE = {"pairwise": _kernels.KIND_PAIRWISE, "grouped": _kernels.KIND_GROUPED}
 
 
 def scaled_returns(mean_features: NDArray[np.float64], weights: ArrayLike, beta: float = 1.0) -> NDArray[np.float64]:
@@ -209,10 +209,14 @@ class PreferenceLikelihood:
         n = self._scratch_size
         N = self.mean_features.shape[0]
         gitems, goff, gmarg, width, moff = self._group_arrays
-        code = _kernels.KIND_RANKED if (self.kind == "pairwise" and p.ranked) else _KIND_CODE[self.kind]
+        code = LIKELIHOOD_CODES["ranked" if (self.kind == "pairwise" and p.ranked) else self.kind]
         return (code, p.block_rows, p.block_row_offsets, p.block_cols, p.block_col_offsets,
                 p.block_margins, p.pair_i, p.pair_j, p.pair_margins, _aligned(n), _aligned(n), _aligned(n),
                 _aligned(N), _aligned(N), gitems, goff, gmarg, np.empty((4, width)), moff)
+
+    def kernel_bundle(self) -> _kernels.LikelihoodArrays:
+        """:meth:`kernel_args` by name (fresh scratch buffers), for the compiled sampler."""
+        return _kernels.LikelihoodArrays(*self.kernel_args())
 
     def weights(self, penalty_weights: ArrayLike, indicators: ArrayLike | None = None) -> NDArray[np.float64]:
         """Total weights :math:`w_n + c \\circ w_p`."""

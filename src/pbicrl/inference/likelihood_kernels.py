@@ -31,12 +31,15 @@ groups (binned moments) in the comment before :func:`_gb_moments`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
+from pbicrl.inference.codes import LIK_GROUPED, LIK_PAIRWISE, LIK_RANKED
+
 __all__ = ["block_loglik", "pairs_loglik", "pairs_loglik_bound", "total_loglik", "ranked_loglik", "softplus",
-           "grouped_loglik", "group_term", "loglik", "KIND_PAIRWISE", "KIND_GROUPED", "KIND_RANKED"]
+           "grouped_loglik", "group_term", "loglik", "LikelihoodArrays", "KIND_PAIRWISE", "KIND_GROUPED", "KIND_RANKED"]
 
 _CHUNK = 512  # 2**512 < max double: a flushed product of (1 + t <= 2) factors never overflows
 _SPREAD = 600.0  # returns within +-300 of the centre and margins within +-300: every factor in e^{+-600}
@@ -504,9 +507,9 @@ def ranked_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, moff: np.
 # 10x finer steps, and within 1e-10 of scipy's adaptive quadrature of the defining integral (the tests).
 # Typical cost: 4-6 Newton steps and ~36 nodes, each one exp (or expm1) per item: O(n Q).
 
-KIND_PAIRWISE = 0  # PreferenceLikelihood(kind="pairwise"): paper Eq. 7 over blocks and explicit pairs
-KIND_GROUPED = 1  # PreferenceLikelihood(kind="grouped"): grouped Plackett-Luce
-KIND_RANKED = 2  # PreferenceLikelihood(kind="pairwise") over Preferences.ranked: ranked_loglik
+KIND_PAIRWISE = LIK_PAIRWISE  # PreferenceLikelihood(kind="pairwise"): paper Eq. 7 over blocks and explicit pairs
+KIND_GROUPED = LIK_GROUPED  # PreferenceLikelihood(kind="grouped"): grouped Plackett-Luce
+KIND_RANKED = LIK_RANKED  # PreferenceLikelihood(kind="pairwise") over Preferences.ranked: ranked_loglik
 
 _LN2 = math.log(2.0)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -1167,6 +1170,35 @@ def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: n
             x[i] = a[gitems[goff[k] + i]] - log_lam
         total += group_term(x[:n], gbuf)
     return total
+
+
+class LikelihoodArrays(NamedTuple):
+    """The arguments of :func:`loglik` after the returns, by name (``PreferenceLikelihood.kernel_bundle()``).
+
+    ``kind`` (``LIK_*`` of :mod:`pbicrl.inference.codes`); blocks of pairs (rows, row offsets, columns, column
+    offsets, margins); explicit pairs (i, j, margins); scratch ``b, Q, Qinv`` (block width or N) and ``E, Einv``
+    (N); the ranking (group members, group offsets, margin matrix, grouped scratch, margin offsets).
+    """
+
+    kind: int
+    brows: np.ndarray
+    broff: np.ndarray
+    bcols: np.ndarray
+    bcoff: np.ndarray
+    bm: np.ndarray
+    pi: np.ndarray
+    pj: np.ndarray
+    pm: np.ndarray
+    b: np.ndarray
+    Q: np.ndarray
+    Qinv: np.ndarray
+    E: np.ndarray
+    Einv: np.ndarray
+    gitems: np.ndarray
+    goff: np.ndarray
+    gmarg: np.ndarray
+    gbuf: np.ndarray
+    moff: np.ndarray
 
 
 @njit(cache=True, error_model="numpy", inline="always")  # no call: its ~20 array arguments cost refcounts

@@ -63,6 +63,8 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pbicrl.inference.codes import PRIOR_KINDS
+
 __all__ = ["WeightPrior", "ResolvedWeightPrior", "IndicatorPrior", "PriorError", "feature_sd", "truncated_normal_ppf",
            "PARAMETRIC_FEATURE_SD", "FLAT_DEFAULT_BOUND"]
 
@@ -72,7 +74,7 @@ PARAMETRIC_FEATURE_SD = 0.5
 FLAT_DEFAULT_BOUND = 1000.0
 
 # Kind codes of the compiled density (:func:`pbicrl.inference.samplers._priorkern._logprior_w`).
-_CODES = {"flat": 0, "normal": 1, "improper": 2, "student_t": 3}
+_CODES = PRIOR_KINDS
 _ALIASES = {"uniform": "flat", "student-t": "student_t", "t": "student_t"}
 _SIGNS = ("negative", "any")
 _MAX_DF = 1e6  # the incomplete-beta continued fraction needs O(sqrt(df)) terms; beyond this use "normal"

@@ -65,6 +65,8 @@ from numpy.typing import NDArray
 from pbicrl import errors
 from pbicrl._atomic import OutputBusyError, OutputExistsError, atomic_dir, clean_stale_temporaries
 from pbicrl.analysis.diagnostics import split_rhat
+from pbicrl.inference.codes import (C_EVALS, C_FLIP_ACC, C_FLIP_PROP, C_T_ACC, C_T_PROP, C_W_ACC, C_W_PROP,
+                                    N_COUNTS)
 from pbicrl.inference.draws import ESTIMATORS, LEVEL, SELECTION_THRESHOLD, DrawsView
 from pbicrl.runs import SCHEMA_VERSION, load_run
 
@@ -104,7 +106,7 @@ class Posterior(DrawsView):
     feature_names : tuple of str
     method : str
     settings : dict
-    counts : ndarray, (chains, 7)
+    counts : ndarray, (chains, N_COUNTS)
         Flip proposals/accepts, weight proposals/accepts, likelihood evaluations, parameter proposals/accepts.
     seed : int
     runtime_s : float
@@ -307,7 +309,7 @@ class Posterior(DrawsView):
         recorded: dict[str, Any] = {}
         counts = rec.counts
         if counts is None:
-            counts = np.zeros((C, 7), dtype=np.int64)
+            counts = np.zeros((C, N_COUNTS), dtype=np.int64)
             recorded = {k: s[k] for k in ("acceptance_rate", "likelihood_evaluations") if k in s}
         P = len(rec.parameter_names)
         params = rec.parameters if rec.parameters is not None else np.zeros((C, D, 0))
@@ -562,15 +564,16 @@ class Posterior(DrawsView):
         if isinstance(self.recorded.get("acceptance_rate"), Mapping):
             return {str(k): float(v) for k, v in self.recorded["acceptance_rate"].items() if _is_real(v)}
         tot = self.counts.sum(axis=0)
+        has_theta = tot.size > C_T_ACC  # runs saved before parameter moves were counted have 5 counters
         out = {}
-        if tot[0]:
-            out["flip"] = float(tot[1] / tot[0])
-        if tot[2]:
-            out["weight"] = float(tot[3] / tot[2])
-        if tot.size > 5 and tot[5]:
-            out["parameter"] = float(tot[6] / tot[5])
-        prop = tot[0] + tot[2] + (tot[5] if tot.size > 5 else 0)
-        acc = tot[1] + tot[3] + (tot[6] if tot.size > 5 else 0)
+        if tot[C_FLIP_PROP]:
+            out["flip"] = float(tot[C_FLIP_ACC] / tot[C_FLIP_PROP])
+        if tot[C_W_PROP]:
+            out["weight"] = float(tot[C_W_ACC] / tot[C_W_PROP])
+        if has_theta and tot[C_T_PROP]:
+            out["parameter"] = float(tot[C_T_ACC] / tot[C_T_PROP])
+        prop = tot[C_FLIP_PROP] + tot[C_W_PROP] + (tot[C_T_PROP] if has_theta else 0)
+        acc = tot[C_FLIP_ACC] + tot[C_W_ACC] + (tot[C_T_ACC] if has_theta else 0)
         out["overall"] = float(acc / prop) if prop else 0.0
         return out
 
@@ -675,7 +678,7 @@ class Posterior(DrawsView):
             "chain_runtime_s": self.chain_runtime_s.tolist(),
             "likelihood_evaluations": (int(self.recorded["likelihood_evaluations"])
                                        if _is_real(self.recorded.get("likelihood_evaluations"))
-                                       else int(self.counts[:, 4].sum())),
+                                       else int(self.counts[:, C_EVALS].sum())),
             "settings": settings,
             "warnings": self.warnings(),
         } | ({"extra": self.extra} if self.extra else {})
@@ -1099,7 +1102,7 @@ def is_run_dir(path: str | os.PathLike[str]) -> bool:
 
 def _check_writable(parent: Path) -> None:
     if parent.exists() and not os.access(parent, os.W_OK | os.X_OK):
-        raise PermissionError(f"out: cannot write into {parent} (permission denied)")
+        raise PermissionError(f"out_dir: cannot write into {parent} (permission denied)")
 
 
 # Run directories claimed by this process: absolute path -> (descriptor of the locked file, its path).
@@ -1143,7 +1146,7 @@ def claim_out_dir(out_dir: str | os.PathLike[str]) -> Path:
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "unknown"
             os.close(fd)
-            raise OutputBusyError(f"out: {out} is being written by another pbicrl process ({holder}); wait for it "
+            raise OutputBusyError(f"out_dir: {out} is being written by another pbicrl process ({holder}); wait for it "
                                   "to finish or choose another directory") from None
         except OSError:  # no locks on this file system
             os.close(fd)
@@ -1159,7 +1162,7 @@ def claim_out_dir(out_dir: str | os.PathLike[str]) -> Path:
             _CLAIMS[key] = (fd, str(lock))
             return out
         os.close(fd)
-    raise OutputBusyError(f"out: {out}: could not claim it (its lock file keeps changing); try again")
+    raise OutputBusyError(f"out_dir: {out}: could not claim it (its lock file keeps changing); try again")
 
 
 def release_out_dir(out_dir: str | os.PathLike[str] | None = None) -> None:
@@ -1202,16 +1205,16 @@ def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, c
     """
     out = Path(out_dir)
     if out.name in ("", ".", ".."):
-        raise FileExistsError(f"out: {out_dir!s} names no new directory; give a directory name such as runs/pm")
+        raise FileExistsError(f"out_dir: {out_dir!s} names no new directory; give a directory name such as runs/pm")
     if len(os.fsencode(out.name)) > 200:
-        raise ValueError(f"out: the directory name is {len(os.fsencode(out.name))} bytes long; at most 200")
+        raise ValueError(f"out_dir: the directory name is {len(os.fsencode(out.name))} bytes long; at most 200")
     if out.is_symlink():
-        raise FileExistsError(f"out: {out} is a symbolic link; give a real directory path")
+        raise FileExistsError(f"out_dir: {out} is a symbolic link; give a real directory path")
     parent = out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if parent.exists() and not parent.is_dir():
-        raise FileExistsError(f"out: {parent} is a file, not a directory")
+        raise FileExistsError(f"out_dir: {parent} is a file, not a directory")
     _check_writable(parent)
     if claim:
         claim_out_dir(out)
@@ -1227,11 +1230,11 @@ def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, c
 def _check_existing(out: Path, overwrite: bool) -> None:
     if out.exists() and not (out.is_dir() and not any(out.iterdir())):
         if not overwrite:
-            raise OutputExistsError("out", out)
+            raise OutputExistsError("out_dir", out)
         if not is_run_dir(out):
             # overwrite replaces a previous run only: never a data file or an unrelated directory
             what = "a file" if not out.is_dir() else "a directory that is not a pbicrl run (no summary.json)"
-            raise FileExistsError(f"out: {out} is {what}; overwrite only replaces a previous run directory")
+            raise FileExistsError(f"out_dir: {out} is {what}; overwrite only replaces a previous run directory")
 
 
 def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], npz_files: dict[str, dict[str, Any]],
@@ -1254,7 +1257,7 @@ def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], n
     """
     out = Path(out_dir)
     if out.is_symlink():
-        raise FileExistsError(f"out: {out} is a symbolic link; give a real directory path")
+        raise FileExistsError(f"out_dir: {out} is a symbolic link; give a real directory path")
     texts = {name: json.dumps(json_safe(content), indent=2, allow_nan=False) + "\n"
              for name, content in json_files.items()}  # before creating anything: a TypeError leaves no trace
     parent = out.parent
@@ -1266,7 +1269,7 @@ def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], n
     try:
         clean_stale_temporaries(out)
         if out.is_symlink():
-            raise FileExistsError(f"out: {out} is a symbolic link; give a real directory path")
+            raise FileExistsError(f"out_dir: {out} is a symbolic link; give a real directory path")
         _check_existing(out, overwrite)
         if out.is_dir() and not any(out.iterdir()):
             out.rmdir()

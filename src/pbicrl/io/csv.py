@@ -21,14 +21,14 @@ from __future__ import annotations
 import csv as _csv
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbicrl.inference.data import Dataset, DatasetError, _file_kind, _umask, clean_stale_temporaries, temporary_prefix
+from pbicrl._atomic import atomic_path, clean_stale_temporaries
+from pbicrl.inference.data import Dataset, DatasetError, _file_kind
 
 __all__ = ["TableError", "read_csv", "read_parquet", "read_table", "columns_to_dataset", "write_csv", "check_delimiter"]
 
@@ -329,11 +329,9 @@ def write_csv(dataset: Dataset, path: str | os.PathLike[str], *, id_col: str = "
     clash = set(header[:2]) & set(header[2:])
     if clash or len(set(header)) != len(header):
         raise TableError(f"{p}: column names clash: {sorted(clash) or header}")
-    p.parent.mkdir(parents=True, exist_ok=True)
     clean_stale_temporaries(p)
-    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(p), dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
+    with atomic_path(p) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:  # newline="": the csv module ends the rows
             w = _csv.writer(fh)
             w.writerow(header)
             for i in range(dataset.n_trajectories):
@@ -345,9 +343,4 @@ def write_csv(dataset: Dataset, path: str | os.PathLike[str], *, id_col: str = "
                     if a:
                         row += [repr(float(x)) for x in dataset.actions[r]]
                     w.writerow(row)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return p

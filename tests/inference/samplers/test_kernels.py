@@ -33,7 +33,8 @@ def test_compiled_chain_equals_reference(ranked_problem, method, layout):
                           weight_prior=prior)
     state = kernel.init(1)
     if method == "pbicrl":
-        state = state._replace(q_mean=np.array([0.0, -5.0, -20.0, 0.5]), q_scale=np.array([1.0, 3.0, 10.0, 1.0]))
+        state = state._replace(adaptation=state.adaptation._replace(q_mean=np.array([0.0, -5.0, -20.0, 0.5]),
+                                                                    q_scale=np.array([1.0, 3.0, 10.0, 1.0])))
     rng = np.random.default_rng(7)
     randoms = kernel.draw_randoms(np.random.default_rng(7), n)
     out = kernel.new_buffers(n)
@@ -49,24 +50,60 @@ def test_compiled_chain_equals_reference(ranked_problem, method, layout):
         assert end.counts[4] < 0.8 * (end.counts[0] + end.counts[2])  # many proposals rejected from the bound
 
 
-def test_step_is_pure_and_chunking_does_not_matter(ranked_problem):
+def _flat(state):
+    """Every array of a (nested) ChainState, copied, and its scalars."""
+    out = []
+    for x in state:
+        out.extend(_flat(x) if isinstance(x, tuple) else [x.copy() if isinstance(x, np.ndarray) else x])
+    return out
+
+
+def test_step_is_pure_and_the_same_chunking_gives_the_same_chain(ranked_problem):
     kernel = build_kernel(_lik(ranked_problem), n_iterations=3000, burn_in=1000, thin=1)
     s0 = kernel.init(3)
-    before = [x.copy() if isinstance(x, np.ndarray) else x for x in s0]
+    before = _flat(s0)
     s1, info = kernel.step(np.random.default_rng(0), s0)
-    for x, y in zip(before, s0):
+    assert len(before) == 23
+    for x, y in zip(before, _flat(s0)):
         np.testing.assert_array_equal(x, y)
     assert s1.iteration == 1 and info.move in ("flip", "weight", "none")
-    one = kernel.run(np.random.default_rng(5), s0, 3000)
-    st = s0
-    rng = np.random.default_rng(5)
-    for _ in range(3):
-        st = kernel.run(rng, st, 1000)
-    # Randoms are drawn per chunk from the same stream, so equal chunking of the stream gives equal chains.
-    rng2 = np.random.default_rng(5)
-    u = [kernel.draw_randoms(rng2, 1000) for _ in range(3)]
-    assert st.iteration == one.iteration == 3000
-    assert np.isfinite(st.log_likelihood) and u[0][0].size == 1000
+    # Randoms are drawn per chunk, so the chunk sizes are part of the chain: the same chunks give the same chain
+    runs = []
+    for _ in range(2):
+        st, rng = s0, np.random.default_rng(5)
+        for _ in range(3):
+            st = kernel.run(rng, st, 1000)
+        runs.append(st)
+    for x, y in zip(_flat(runs[0]), _flat(runs[1])):
+        np.testing.assert_array_equal(x, y)
+    assert runs[0].iteration == 3000 and not np.array_equal(runs[0].penalty_weights, s0.penalty_weights)
+    for x, y in zip(before, _flat(s0)):  # run is pure too
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("method,p_joint", [("pbicrl", 0.0), ("pbicrl", 0.3), ("paper", 0.0), ("bpl", 0.3)])
+def test_step_info_comes_from_the_loop_and_agrees_with_the_counters(ranked_problem, method, p_joint):
+    """StepInfo is the loop's own report of its last move, not read off the counters; both must agree."""
+    from pbicrl.inference import codes
+
+    kernel = build_kernel(_lik(ranked_problem), method=method, n_iterations=400, p_joint=p_joint,
+                          weight_prior=WeightPrior("flat", -50, 50) if method != "paper" else WeightPrior("improper", sign="any"))
+    rng = np.random.default_rng(2)
+    st = kernel.init(rng)
+    seen = set()
+    for _ in range(300):
+        new, info = kernel.step(rng, st)
+        dc = new.counts - st.counts
+        prop = {"flip": codes.C_FLIP_PROP, "weight": codes.C_W_PROP, "parameter": codes.C_T_PROP}
+        acc = {"flip": codes.C_FLIP_ACC, "weight": codes.C_W_ACC, "parameter": codes.C_T_ACC}
+        if info.move == "none":
+            assert dc[[codes.C_FLIP_PROP, codes.C_W_PROP, codes.C_T_PROP]].sum() == 0
+        else:
+            assert dc[prop[info.move]] == 1 and dc[acc[info.move]] == int(info.accepted)
+        assert info.log_likelihood == new.log_likelihood
+        seen.add((info.move, info.accepted))
+        st = new
+    assert {("weight", True), ("weight", False)} <= seen
 
 
 def test_same_seed_same_chains_any_jobs(violations_problem):

@@ -5,7 +5,9 @@
 driver for several chains and many draws.
 """
 
+from pbicrl.inference.samplers.bundles import Adaptation, MapTracker, Position
 from pbicrl.inference.samplers.driver import run_chain, sample
 from pbicrl.inference.samplers.kernels import METHODS, ChainState, Kernel, SamplerSettings, StepInfo, build_kernel
 
-__all__ = ["sample", "run_chain", "build_kernel", "Kernel", "SamplerSettings", "ChainState", "StepInfo", "METHODS"]
+__all__ = ["sample", "run_chain", "build_kernel", "Kernel", "SamplerSettings", "ChainState", "StepInfo", "METHODS",
+           "Position", "Adaptation", "MapTracker"]

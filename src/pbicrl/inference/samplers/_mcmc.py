@@ -1,8 +1,9 @@
 """Compiled Metropolis-Hastings loop shared by the PBICRL, paper (Algorithms 1/2) and BPL samplers.
 
 All randomness arrives as pre-drawn arrays (one row of uniforms/normals per iteration), so a chain is a
-pure function of its inputs. State lives in small arrays mutated in place; :mod:`pbicrl.inference.samplers.kernels`
-wraps them in NamedTuples.
+pure function of its inputs. :func:`advance` takes typed bundles (:mod:`pbicrl.inference.samplers.bundles`) whose
+arrays it mutates in place; :mod:`pbicrl.inference.samplers.kernels` copies the state first. Integer codes
+(modes, moves, counters) are the named constants of :mod:`pbicrl.inference.codes`.
 
 Features ``0..d_known-1`` are known features; features ``d_known..`` are parametric constraints whose
 (scaled) mean-feature rows of ``FbT`` are recomputed from :math:`\\vartheta` by
@@ -12,22 +13,27 @@ Features ``0..d_known-1`` are known features; features ``d_known..`` are paramet
 from __future__ import annotations
 
 import math
+import sys
+from types import ModuleType
 
 import numpy as np
 from numba import njit
+from numba.core.dispatcher import Dispatcher
 
-from pbicrl.inference.likelihood_kernels import KIND_PAIRWISE, loglik, pairs_loglik_bound
+from pbicrl.inference import codes, likelihood_kernels
+from pbicrl.inference.codes import (C_EVALS, C_FLIP_ACC, C_FLIP_PROP, C_T_ACC, C_T_PROP, C_W_ACC, C_W_PROP,
+                                    LIK_PAIRWISE, MODE_AUTHORS, MODE_BPL, MODE_PAPER, MODE_PBICRL, MOVE_FLIP,
+                                    MOVE_JOINT, MOVE_NONE, MOVE_PARAMETER, MOVE_WEIGHT, N_COUNTS)
+from pbicrl.inference.likelihood_kernels import LikelihoodArrays, loglik, pairs_loglik_bound
+from pbicrl.inference.samplers import _parametric, _priorkern, bundles
+from pbicrl.inference.samplers._cache import flush_stale
 from pbicrl.inference.samplers._parametric import param_column
 from pbicrl.inference.samplers._priorkern import _logprior_w, _lognormal
+from pbicrl.inference.samplers.bundles import (Adaptation, ConstraintArrays, Draws, MapTracker, Model, Moves,
+                                               Position, Randoms, Schedule, Scratch)
 
-MODE_PBICRL = 0  # flip-and-draw moves (reversible jump), valid for the stated prior
-MODE_PAPER = 1  # the paper's Algorithm 1 (2 with a schedule that does propose theta)
-MODE_BPL = 2  # Algorithm 3: weights only, every feature on
-MODE_AUTHORS = 3  # Algorithm 1 as the authors' public code runs it: switching c_j off resets w_j to 0
-
-# counters layout
-C_FLIP_PROP, C_FLIP_ACC, C_W_PROP, C_W_ACC, C_EVALS, C_T_PROP, C_T_ACC = 0, 1, 2, 3, 4, 5, 6
-N_COUNTS = 7
+__all__ = ["advance", "run_chunk", "MODE_PBICRL", "MODE_PAPER", "MODE_BPL", "MODE_AUTHORS", "C_FLIP_PROP",
+           "C_FLIP_ACC", "C_W_PROP", "C_W_ACC", "C_EVALS", "C_T_PROP", "C_T_ACC", "N_COUNTS"]
 
 @njit(cache=True)
 def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: np.ndarray, use_prior: bool) -> float:
@@ -88,22 +94,16 @@ def _adapt_joint(jcov: np.ndarray, jst: np.ndarray, jsc: np.ndarray, sigma: np.n
 
 
 @njit(cache=True, error_model="numpy")
-def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
-              c, w, theta, a, scal, FbT, beta, power,
-              lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff,
-              fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi,
-              u_j, u_mv, z, u_acc, zt,
-              cand, p_flip, p_theta, f_s, log_odds, pkind, prm,
-              sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt,
-              out_c, out_w, out_t, out_ll, out_lp, n_out,
-              map_c, map_w, map_t, map_scal, counts,
-              a_new, col_new, theta_new, memo_valid, memo_ll,
-              p_joint, zj, jcov, jst, jsc):
-    """Advance one chain by ``n`` iterations (global iteration numbers ``it0 .. it0+n-1``, 0-based).
+def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: ConstraintArrays, moves: Moves,
+            model: Model, rnd: Randoms, adapt: Adaptation, draws: Draws, best: MapTracker, counts: np.ndarray,
+            scratch: Scratch) -> None:
+    """Advance one chain by ``sched.n`` iterations (global iteration numbers ``it0 .. it0+n-1``, 0-based).
 
-    ``lkind, brows .. moff`` are ``PreferenceLikelihood.kernel_args()`` (the likelihood's kind, pairwise arrays
-    and scratch, grouped arrays and scratch, margin offsets), passed on to :func:`pbicrl.inference.likelihood_kernels.loglik`.
-    ``scal`` = [log-likelihood, log-prior]; ``map_scal`` = [best log-posterior, its log-likelihood];
+    Every argument is a bundle of :mod:`pbicrl.inference.samplers.bundles` (``lik``:
+    :class:`pbicrl.inference.likelihood_kernels.LikelihoodArrays`, passed on to
+    :func:`pbicrl.inference.likelihood_kernels.loglik`); ``counts`` (``N_COUNTS``,) is indexed by ``C_*``. The body
+    reads the fields into the short local names below (``scal`` = ``pos.log_density`` = [log-likelihood,
+    log-prior]; ``map_scal`` = ``best.log_density`` = [best log-posterior, its log-likelihood];
     ``n_out`` = [number of stored draws]. ``power`` tempers the log-likelihood (1 = the paper's model). ``naive`` recounts every state for axis halfspaces (benchmark only). Draws are stored after ``burn_in`` every ``thin`` iterations.
     ``ad`` (5, d) and ``adt`` (5, P) are warm-up accumulators (count, sum, sum of squares; proposals, accepts).
     In ``pbicrl`` mode ``memo_ll[j]`` caches the likelihood with feature ``j`` switched off (valid while no
@@ -116,7 +116,25 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
     and products of the weights, and ``jcov`` is re-estimated from it at each adaptation point; ``s`` adapts towards
     25% acceptance throughout warm-up (``jsc[1:3]``: proposals, accepts in the window). Afterwards the kernel is
     fixed.
+
+    ``scratch.last`` receives [move code, accepted] of the last iteration (``MOVE_*``; a joint move with no active
+    weight counts as ``MOVE_NONE``).
     """
+    # Local names for the fields: the arithmetic below reads exactly as it did with positional arguments.
+    mode, n, it0, burn_in, thin, adapt_every = sched
+    c, w, theta, a, FbT, scal = pos
+    lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm = (lik.kind, lik.brows, lik.broff, lik.bcols, lik.bcoff,
+                                                           lik.bm, lik.pi, lik.pj, lik.pm)
+    sb, sQ, sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff = (lik.b, lik.Q, lik.Qinv, lik.E, lik.Einv, lik.gitems,
+                                                             lik.goff, lik.gmarg, lik.gbuf, lik.moff)
+    fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi = cons
+    d_known, naive, cand, p_flip, p_theta, f_s, p_joint = moves
+    beta, power, log_odds, pkind, prm = model
+    u_j, u_mv, z, u_acc, zt, zj = rnd
+    sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt, jcov, jst, jsc = adapt
+    out_c, out_w, out_t, out_ll, out_lp, n_out = draws
+    map_c, map_w, map_t, map_scal = best
+    a_new, col_new, theta_new, memo_valid, memo_ll, last = scratch
     d = w.size
     N = a.size
     P = theta.size
@@ -128,32 +146,34 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
     # Explicit pairs only: reject a proposal from a cheap upper bound on its log-likelihood when even the bound fails
     # the acceptance test. Floating-point addition is monotone, so the exact log-ratio, computed by the same
     # expression, would fail too: same decisions, same chain, fewer exact evaluations (counts[C_EVALS]).
-    screen = lkind == KIND_PAIRWISE and bm.size == 0 and pi_.size >= 16
+    screen = lkind == LIK_PAIRWISE and bm.size == 0 and pi_.size >= 16
     joint = p_joint > 0.0 and (mode == MODE_PBICRL or mode == MODE_BPL)
     act = np.empty(d, np.int64)
     dw = np.empty(d)
     Lc = np.empty((d, d))
+    move = MOVE_NONE
+    accepted = False
     for t in range(n):
         it = it0 + t
-        move = 0  # 0 none, 1 flip, 2 weight, 3 theta, 4 all active weights
+        move = MOVE_NONE
         j = -1
         if latent:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
             if ((it + 1) % f_s) != 0:  # paper counts iterations from 1
-                move = 1
+                move = MOVE_FLIP
             elif j >= d_known and u_mv[t] < p_theta:
-                move = 3
+                move = MOVE_PARAMETER
             else:
-                move = 2
+                move = MOVE_WEIGHT
         elif joint and u_mv[t] >= 1.0 - p_joint:
-            move = 4
+            move = MOVE_JOINT
         elif mode == MODE_BPL:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
-            move = 3 if (j >= d_known and u_mv[t] < p_theta) else 2
+            move = MOVE_PARAMETER if (j >= d_known and u_mv[t] < p_theta) else MOVE_WEIGHT
         else:
             if u_mv[t] < p_flip:
                 j = cand[min(int(u_j[t] * nc), nc - 1)]
-                move = 1
+                move = MOVE_FLIP
             else:
                 want_theta = u_mv[t] < p_flip + p_theta
                 n_on = 0
@@ -168,9 +188,9 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                                 j = cand[k]
                                 break
                             pick -= 1
-                    move = 3 if want_theta else 2
+                    move = MOVE_PARAMETER if want_theta else MOVE_WEIGHT
         accepted = False
-        if move == 1:
+        if move == MOVE_FLIP:
             counts[C_FLIP_PROP] += 1
             if latent:
                 # flip c_j, keep the latent weight (and parameters); likelihood ratio only
@@ -285,7 +305,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                     accepted = True
             if accepted:
                 counts[C_FLIP_ACC] += 1
-        elif move == 2:
+        elif move == MOVE_WEIGHT:
             counts[C_W_PROP] += 1
             ad[3, j] += 1
             step = sigma[j] * z[t]
@@ -318,7 +338,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
             if accepted:
                 counts[C_W_ACC] += 1
                 ad[4, j] += 1
-        elif move == 3:
+        elif move == MOVE_PARAMETER:
             m = j - d_known
             p0 = poff[m]
             p1 = poff[m + 1]
@@ -361,7 +381,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
             if accepted:
                 counts[C_T_ACC] += 1
                 adt[4, p0] += 1
-        elif move == 4:
+        elif move == MOVE_JOINT:
             m = 0
             for k in range(nc):
                 if c[cand[k]] == 1:
@@ -408,14 +428,16 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                         ll = ll_new
                         lp += lp_new - lp_old
                         accepted = True
+            else:
+                move = MOVE_NONE  # no active weight: nothing was proposed
             if accepted:
                 counts[C_W_ACC] += 1
                 jsc[2] += 1.0
         if accepted:
-            if move == 4:
+            if move == MOVE_JOINT:
                 for k in range(d):
                     memo_valid[k] = False
-            elif latent and move != 1 and c[j] == 0:
+            elif latent and move != MOVE_FLIP and c[j] == 0:
                 # a latent weight or location moved: the returns did not change, so only flipping j changes
                 memo_valid[j] = False
             elif latent:
@@ -425,7 +447,7 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 for k in range(d):
                     if k != j:
                         memo_valid[k] = False
-                if move == 1:
+                if move == MOVE_FLIP:
                     memo_valid[j] = True  # memo_ll[j] holds the off-state likelihood (set above)
         # MAP over every visited state
         if ll + lp > map_scal[0]:
@@ -506,3 +528,60 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
                 n_out[0] = r + 1
     scal[0] = ll
     scal[1] = lp
+    last[0] = move
+    last[1] = accepted
+
+
+def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
+              c, w, theta, a, scal, FbT, beta, power,
+              lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff,
+              fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi,
+              u_j, u_mv, z, u_acc, zt,
+              cand, p_flip, p_theta, f_s, log_odds, pkind, prm,
+              sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt,
+              out_c, out_w, out_t, out_ll, out_lp, n_out,
+              map_c, map_w, map_t, map_scal, counts,
+              a_new, col_new, theta_new, memo_valid, memo_ll,
+              p_joint, zj, jcov, jst, jsc) -> None:  # noqa: ANN001 - the recorded positional form, typed by advance
+    """:func:`advance` with its bundles spread into the positional arguments it took before the bundles.
+
+    Plain Python (it packs the same arrays, no copies, and calls :func:`advance`): the stored chain reference
+    (``tests/data/chain_reference.npz``) records ``run_chunk``'s arguments in this order. New code calls
+    :func:`advance`.
+    """
+    advance(Schedule(int(mode), int(n), int(it0), int(burn_in), int(thin), int(adapt_every)),
+            Position(c, w, theta, a, FbT, scal),
+            LikelihoodArrays(lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi, gitems, goff,
+                             gmarg, gbuf, moff),
+            ConstraintArrays(fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi),
+            Moves(int(d_known), bool(naive), cand, float(p_flip), float(p_theta), int(f_s), float(p_joint)),
+            Model(float(beta), float(power), float(log_odds), pkind, prm),
+            Randoms(u_j, u_mv, z, u_acc, zt, zj),
+            Adaptation(sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt, jcov, jst, jsc),
+            Draws(out_c, out_w, out_t, out_ll, out_lp, n_out),
+            MapTracker(map_c, map_w, map_t, map_scal), counts,
+            Scratch(a_new, col_new, theta_new, memo_valid, memo_ll, np.zeros(2, np.int64)))
+
+
+# ------------------------------------------------------------------------------------------------ on-disk cache
+def _cached_dispatchers(module: ModuleType) -> list[Dispatcher]:
+    return [v for v in vars(module).values() if isinstance(v, Dispatcher) and v.py_func.__module__ == module.__name__]
+
+
+def _flush_stale_caches() -> None:
+    """Numba re-validates a cached function against its own file only (:mod:`pbicrl.inference.samplers._cache`):
+    flush each module's cached functions when any file whose code or constants they compile in has changed.
+    Runs at import, before any of them is called (``import pbicrl`` imports this module)."""
+    here = sys.modules[__name__]
+    deps = {
+        codes: [codes],
+        likelihood_kernels: [likelihood_kernels, codes],
+        _parametric: [_parametric, codes],
+        _priorkern: [_priorkern, codes],
+        here: [here, codes, likelihood_kernels, _parametric, _priorkern, bundles],
+    }
+    for module, sources in deps.items():
+        flush_stale(_cached_dispatchers(module), [m.__file__ for m in sources])
+
+
+_flush_stale_caches()

@@ -7,7 +7,9 @@ import math
 import numpy as np
 from numba import njit
 
-FAM_AXIS, FAM_HALFSPACE, FAM_BOX, FAM_BALL = 0, 1, 2, 3
+from pbicrl.inference.codes import FAM_AXIS, FAM_BALL, FAM_BOX, FAM_HALFSPACE
+
+__all__ = ["param_column", "FAM_AXIS", "FAM_HALFSPACE", "FAM_BOX", "FAM_BALL"]
 
 
 @njit(cache=True)

@@ -6,7 +6,7 @@ parameters ``[low, high, loc, scale, df, log_norm]``, as produced by
 truncation mass :math:`F(b) - F(a)`) is computed once in Python, where the tail-accurate CDFs live; the
 kernel here only evaluates :math:`\\log f(z) - \\text{log\\_norm}` at :math:`z = (w - \\mu_j)/s_j`.
 
-Kind codes (:data:`pbicrl.inference.priors._CODES`): 0 flat, 1 normal, 2 improper, 3 Student-t.
+Kind codes: ``PRIOR_*`` of :mod:`pbicrl.inference.codes` (``KIND_*`` here are the same constants).
 """
 
 from __future__ import annotations
@@ -16,14 +16,16 @@ import math
 import numpy as np
 from numba import njit
 
+from pbicrl.inference.codes import PRIOR_FLAT, PRIOR_IMPROPER, PRIOR_NORMAL, PRIOR_STUDENT_T
+
 __all__ = ["KIND_FLAT", "KIND_NORMAL", "KIND_IMPROPER", "KIND_STUDENT_T", "N_PRIOR_PARAMS"]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
-KIND_FLAT = 0
-KIND_NORMAL = 1
-KIND_IMPROPER = 2
-KIND_STUDENT_T = 3
+KIND_FLAT = PRIOR_FLAT
+KIND_NORMAL = PRIOR_NORMAL
+KIND_IMPROPER = PRIOR_IMPROPER
+KIND_STUDENT_T = PRIOR_STUDENT_T
 #: Columns of the parameter matrix: low, high, loc, scale, df, log_norm.
 N_PRIOR_PARAMS = 6
 

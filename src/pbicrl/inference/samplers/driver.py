@@ -34,20 +34,20 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from pbicrl.inference.codes import MOVE_FLIP, MOVE_NONE, MOVE_PARAMETER, MOVE_WEIGHT, MOVES
 from pbicrl.inference.constraints import ConstraintSet
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.results import Posterior
-from pbicrl.inference.samplers.kernels import ChainState, Kernel, SamplerSettings, build_kernel
+from pbicrl.inference.samplers.kernels import ADAPT_EVERY, ChainState, Kernel, SamplerSettings, build_kernel
 
 __all__ = ["sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES"]
 
 # Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
 _CHUNK = 20_000
-_ADAPT_EVERY = 500  # Kernel.run's adaptation period (warm-up adapts at iterations it with (it + 1) % 500 == 0)
 _progress_counter: Any = None  # set in workers (inherited through fork) for the progress bar
 _COMPILE_NOTE = "pbicrl: compiling the sampler (first run only, ~15 s)..."
 
-MOVE_CODES = {0: "none", 1: "flip", 2: "weight", 3: "parameter"}
+MOVE_CODES = MOVES
 """Per-draw move codes (``Posterior.move``): the move the compiled loop chose at the iteration of a kept draw."""
 
 
@@ -144,7 +144,7 @@ def sampler_needs_compiling() -> bool:
     try:
         from pbicrl.inference.samplers import _mcmc
 
-        dispatcher = _mcmc.run_chunk
+        dispatcher = _mcmc.advance
         if dispatcher.signatures:
             return False
         cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
@@ -185,12 +185,13 @@ def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_count
                 progress_counter.value += n
     runtime = time.perf_counter() - t0
     k = int(out[5][0])
-    return {"indicators": out[0][:k], "penalty_weights": out[1][:k], "parameters": out[2][:k],
-            "log_likelihood": out[3][:k], "log_prior": out[4][:k], "map_indicators": state.map_indicators,
-            "map_penalty_weights": state.map_penalty_weights, "map_parameters": state.map_parameters,
-            "map_log_posterior": state.map_log_posterior, "map_log_likelihood": state.map_log_likelihood,
-            "counts": state.counts, "sigma": state.sigma, "q_mean": state.q_mean, "q_scale": state.q_scale,
-            "sigma_theta": state.sigma_theta, "move": stats.move[:k], "accepted": stats.accepted[:k],
+    best, adapt = state.best, state.adaptation
+    return {"indicators": out.indicators[:k], "penalty_weights": out.penalty_weights[:k],
+            "parameters": out.parameters[:k], "log_likelihood": out.log_likelihood[:k], "log_prior": out.log_prior[:k],
+            "map_indicators": best.indicators, "map_penalty_weights": best.penalty_weights,
+            "map_parameters": best.parameters, "map_log_posterior": state.map_log_posterior,
+            "map_log_likelihood": state.map_log_likelihood, "counts": state.counts, "sigma": adapt.sigma,
+            "q_mean": adapt.q_mean, "q_scale": adapt.q_scale, "sigma_theta": adapt.sigma_theta, "move": stats.move[:k], "accepted": stats.accepted[:k],
             "acceptance_fraction": stats.fraction[:k],
             "runtime_s": runtime}
 
@@ -222,21 +223,23 @@ def _move_codes(kernel: Kernel, iterations: np.ndarray, u_j: np.ndarray, u_mv: n
     j = cand[np.minimum((u_j * nc).astype(np.int64), nc - 1)]  # the loop's int(u * nc): truncation
     theta_move = (j >= dk) & (u_mv < p_theta)
     if s.method in ("paper", "authors"):
-        code = np.where((np.asarray(iterations) + 1) % int(s.f_s) != 0, 1, np.where(theta_move, 3, 2))
+        code = np.where((np.asarray(iterations) + 1) % int(s.f_s) != 0, MOVE_FLIP,
+                        np.where(theta_move, MOVE_PARAMETER, MOVE_WEIGHT))
     elif s.method == "bpl":
-        code = np.where(theta_move, 3, 2)
+        code = np.where(theta_move, MOVE_PARAMETER, MOVE_WEIGHT)
     else:
         flip = u_mv < s.p_flip
         want_theta = u_mv < s.p_flip + p_theta
         on = np.asarray(indicators_after)[:, cand] == 1
         n_on = np.where(want_theta, (on & (cand >= dk)[None, :]).sum(axis=1), on.sum(axis=1))
-        code = np.where(flip, 1, np.where(n_on > 0, np.where(want_theta, 3, 2), 0))
+        code = np.where(flip, MOVE_FLIP, np.where(n_on > 0, np.where(want_theta, MOVE_PARAMETER, MOVE_WEIGHT),
+                                                   MOVE_NONE))
     return code.astype(np.int8)
 
 
 def _last_warmup_adapts(settings: SamplerSettings) -> bool:
     """Whether the last warm-up iteration adapts the proposals (then storing it instead would change the chain)."""
-    return bool(settings.adapt_) and settings.burn_in_ > 0 and settings.burn_in_ % _ADAPT_EVERY == 0
+    return bool(settings.adapt_) and settings.burn_in_ > 0 and settings.burn_in_ % ADAPT_EVERY == 0
 
 
 class _DrawStats:

@@ -54,16 +54,18 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.inference.codes import MODES, MOVE_NAMES, N_COUNTS
 from pbicrl.inference.constraints import ConstraintSet
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.priors import IndicatorPrior, PriorError, ResolvedWeightPrior, WeightPrior, truncated_normal_ppf
 from pbicrl.inference.samplers import _mcmc
+from pbicrl.inference.samplers.bundles import (Adaptation, ConstraintArrays, Draws, MapTracker, Model, Moves,
+                                               Position, Randoms, Schedule, Scratch)
 
 __all__ = ["SamplerSettings", "ChainState", "StepInfo", "Kernel", "build_kernel", "METHODS"]
 
 METHODS = ("pbicrl", "paper", "authors", "bpl")
-_MODE = {"pbicrl": _mcmc.MODE_PBICRL, "paper": _mcmc.MODE_PAPER, "authors": _mcmc.MODE_AUTHORS,
-         "bpl": _mcmc.MODE_BPL}
+ADAPT_EVERY = 500  # warm-up adapts the proposals every this many iterations (when adaptation is on)
 _LATENT = ("paper", "authors")  # Algorithm 1's schedule and acceptance; flat improper prior
 
 
@@ -208,64 +210,73 @@ class SamplerSettings:
                 "sigma_theta": self.sigma_theta, "p_theta": self.p_theta, "p_joint": float(self.p_joint)}
 
 
+def _field(bundle: str, name: str, doc: str) -> property:
+    """Read-only shortcut ``state.<name>`` for ``state.<bundle>.<name>`` (the flat names of earlier releases)."""
+    return property(lambda self: getattr(getattr(self, bundle), name), doc=doc)
+
+
 class ChainState(NamedTuple):
-    r"""State of one chain.
+    r"""State of one chain: what the next step needs, in four parts.
 
     Attributes
     ----------
-    indicators : ndarray (d,) int8
-        :math:`c` (known features first, then parametric constraints).
-    penalty_weights : ndarray (d,)
-        :math:`w_p` (0 for inactive features in ``pbicrl`` mode; latent in ``paper`` mode).
-    parameters : ndarray (P,)
-        :math:`\vartheta` of all parametric constraints (meaningless where inactive in ``pbicrl`` mode).
-    scaled_returns : ndarray (N,)
-        :math:`a = \beta \bar\Phi (w_n + c \circ w_p)`.
-    features_T : ndarray (d, N)
-        :math:`\beta \bar\Phi^\top`, parametric rows at the current :math:`\vartheta`.
-    log_likelihood, log_prior : float
+    position : Position
+        :math:`c`, :math:`w_p`, :math:`\vartheta`, the scaled returns and feature rows they imply, and
+        [log-likelihood, log-prior] (:class:`pbicrl.inference.samplers.bundles.Position`).
     iteration : int
-    sigma, q_mean, q_scale : ndarray (d,)
-        Weight random-walk scales and flip-and-draw proposals (adapted during warm-up).
-    sigma_theta, q_theta_mean, q_theta_scale : ndarray (P,)
-        The same for the parameters.
-    adapt_stats : ndarray (5, d); adapt_theta_stats : ndarray (5, P)
-    map_indicators, map_penalty_weights, map_parameters : ndarray
-        Best state visited (highest log-posterior).
-    map_log_posterior, map_log_likelihood : float
-    counts : ndarray (7,) int64
-        Flip proposals/accepts, weight proposals/accepts (joint moves included), likelihood evaluations,
-        parameter proposals/accepts.
-    joint_cov : ndarray (d, d); joint_stats : ndarray (3, d, d); joint_scale : ndarray (3,)
-        The joint weight move (``SamplerSettings.p_joint``): adapted covariance, warm-up accumulators, and
-        [scale, proposals, accepts in the current adaptation window].
+        Iterations done (the schedule's clock: warm-up, adaptation points, thinning).
+    adaptation : Adaptation
+        Proposal scales and warm-up statistics (:class:`pbicrl.inference.samplers.bundles.Adaptation`); fixed
+        after warm-up.
+    best : MapTracker
+        The highest-posterior state visited (:class:`pbicrl.inference.samplers.bundles.MapTracker`).
+    counts : ndarray (N_COUNTS,) int64
+        Proposals and acceptances per move type and exact likelihood evaluations, indexed by ``C_*`` of
+        :mod:`pbicrl.inference.codes`.
+
+    The flat names of earlier releases (``indicators``, ``log_likelihood``, ``sigma``, ``map_indicators``, ...)
+    remain as read-only properties.
     """
 
-    indicators: NDArray[np.int8]
-    penalty_weights: NDArray[np.float64]
-    parameters: NDArray[np.float64]
-    scaled_returns: NDArray[np.float64]
-    features_T: NDArray[np.float64]
-    log_likelihood: float
-    log_prior: float
+    position: Position
     iteration: int
-    sigma: NDArray[np.float64]
-    q_mean: NDArray[np.float64]
-    q_scale: NDArray[np.float64]
-    sigma_theta: NDArray[np.float64]
-    q_theta_mean: NDArray[np.float64]
-    q_theta_scale: NDArray[np.float64]
-    adapt_stats: NDArray[np.float64]
-    adapt_theta_stats: NDArray[np.float64]
-    map_indicators: NDArray[np.int8]
-    map_penalty_weights: NDArray[np.float64]
-    map_parameters: NDArray[np.float64]
-    map_log_posterior: float
-    map_log_likelihood: float
+    adaptation: Adaptation
+    best: MapTracker
     counts: NDArray[np.int64]
-    joint_cov: NDArray[np.float64]
-    joint_stats: NDArray[np.float64]
-    joint_scale: NDArray[np.float64]
+
+    indicators = _field("position", "indicators", ":math:`c`, (d,) int8.")
+    penalty_weights = _field("position", "penalty_weights", ":math:`w_p`, (d,).")
+    parameters = _field("position", "parameters", ":math:`\\vartheta`, (P,).")
+    scaled_returns = _field("position", "scaled_returns", ":math:`a`, (N,).")
+    features_T = _field("position", "features_T", ":math:`\\beta\\bar\\Phi^\\top`, (d, N).")
+    sigma = _field("adaptation", "sigma", "Weight random-walk scales, (d,).")
+    q_mean = _field("adaptation", "q_mean", "Flip-and-draw proposal means, (d,).")
+    q_scale = _field("adaptation", "q_scale", "Flip-and-draw proposal scales, (d,).")
+    sigma_theta = _field("adaptation", "sigma_theta", "Parameter random-walk scales, (P,).")
+    q_theta_mean = _field("adaptation", "q_theta_mean", "Parameter proposal means, (P,).")
+    q_theta_scale = _field("adaptation", "q_theta_scale", "Parameter proposal scales, (P,).")
+    joint_cov = _field("adaptation", "joint_cov", "The joint weight move's covariance, (d, d).")
+    map_indicators = _field("best", "indicators", "MAP :math:`c`.")
+    map_penalty_weights = _field("best", "penalty_weights", "MAP :math:`w_p`.")
+    map_parameters = _field("best", "parameters", "MAP :math:`\\vartheta`.")
+
+    @property
+    def log_likelihood(self) -> float:
+        """Log-likelihood at the position."""
+        return float(self.position.log_density[0])
+
+    @property
+    def log_prior(self) -> float:
+        """Log-prior at the position (0 for the paper's flat improper prior)."""
+        return float(self.position.log_density[1])
+
+    @property
+    def map_log_posterior(self) -> float:
+        return float(self.best.log_density[0])
+
+    @property
+    def map_log_likelihood(self) -> float:
+        return float(self.best.log_density[1])
 
     def __repr__(self) -> str:
         # shapes and scalars only: scaled_returns and features_T hold one entry per trajectory
@@ -277,9 +288,9 @@ class ChainState(NamedTuple):
 
 
 class StepInfo(NamedTuple):
-    """What one step did."""
+    """What one step did, as the compiled loop reports it (not reconstructed from the counters)."""
 
-    move: str  # "flip", "weight", "parameter" or "none"
+    move: str  # "flip", "weight" (single or joint), "parameter" or "none"
     accepted: bool
     log_likelihood: float
 
@@ -467,10 +478,14 @@ class Kernel:
         else:
             q_mean, q_sd = qprior.proposal()
             q_scale = np.maximum(10.0 * sigma, q_sd)
-        return ChainState(c, w, theta.copy(), a, FbT, ll, lp, 0, sigma, q_mean, q_scale, sig_t.copy(),
-                          qt_mu.copy(), qt_s.copy(), np.zeros((5, d)), np.zeros((5, P)), c.copy(), w.copy(),
-                          theta.copy(), ll + lp, ll, np.zeros(_mcmc.N_COUNTS, dtype=np.int64),
-                          np.diag(sigma * sigma), np.zeros((3, d, d)), np.array([1.0, 0.0, 0.0]))
+        return ChainState(
+            position=Position(c, w, theta.copy(), a, FbT, np.array([ll, lp])),
+            iteration=0,
+            adaptation=Adaptation(sigma, q_mean, q_scale, sig_t.copy(), qt_mu.copy(), qt_s.copy(), np.zeros((5, d)),
+                                  np.zeros((5, P)), np.diag(sigma * sigma), np.zeros((3, d, d)),
+                                  np.array([1.0, 0.0, 0.0])),
+            best=MapTracker(c.copy(), w.copy(), theta.copy(), np.array([ll + lp, ll])),
+            counts=np.zeros(N_COUNTS, dtype=np.int64))
 
     def _bpl_initial_weights(self, rng: np.random.Generator) -> NDArray[np.float64]:
         """:math:`\\mathcal{N}(0, (\\text{init\\_scale}\\,u_j)^2)` restricted to the prior's support, candidates only.
@@ -497,57 +512,62 @@ class Kernel:
             return 1
         return max(1, int(np.max(np.diff(self.constraints.param_offsets))))
 
-    def draw_randoms(self, rng: np.random.Generator, n: int) -> tuple[NDArray, ...]:
+    def draw_randoms(self, rng: np.random.Generator, n: int) -> Randoms:
         """Per-iteration random numbers: feature choice, move choice, normal, acceptance uniform, parameter normals,
-        and with ``p_joint`` > 0 the joint moves' normals (drawn last: without them the stream is unchanged)."""
+        and with ``p_joint`` > 0 the joint moves' normals (drawn last: without them the stream is unchanged; a
+        (1, 1) placeholder otherwise)."""
         out = (rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n))
         zt = rng.standard_normal((n, self._pmax())) if self.constraints is not None else np.zeros((n, 1))
-        if self.settings.p_joint > 0.0:
-            return out + (zt, rng.standard_normal((n, self.n_features)))
-        return out + (zt,)
+        zj = rng.standard_normal((n, self.n_features)) if self.settings.p_joint > 0.0 else np.zeros((1, 1))
+        return Randoms(*out, zt, zj)
 
-    def new_buffers(self, n_draws: int) -> tuple[NDArray, ...]:
-        """Draw buffers ``(c, w, theta, ll, lp, n_out)`` for :meth:`run`."""
+    def new_buffers(self, n_draws: int) -> Draws:
+        """Draw buffers ``(c, w, theta, ll, lp, n)`` for :meth:`run`."""
         d, P = self.n_features, self.n_params
-        return (np.zeros((n_draws, d), np.int8), np.zeros((n_draws, d)), np.zeros((n_draws, P)), np.zeros(n_draws),
-                np.zeros(n_draws), np.zeros(1, np.int64))
+        return Draws(np.zeros((n_draws, d), np.int8), np.zeros((n_draws, d)), np.zeros((n_draws, P)),
+                     np.zeros(n_draws), np.zeros(n_draws), np.zeros(1, np.int64))
+
+    @cached_property
+    def _moves(self) -> Moves:
+        s = self.settings
+        return Moves(int(self.d_known), bool(s.naive_counts), self._cand, float(s.p_flip), float(self.p_theta_),
+                     int(s.f_s), float(s.p_joint))
+
+    @cached_property
+    def _model(self) -> Model:
+        pkind, prm = self._prior_arrays()
+        lik = self.likelihood
+        return Model(float(lik.beta), float(lik.power), float(self.settings.indicator_prior.log_odds), pkind, prm)
+
+    @cached_property
+    def _constraint_arrays(self) -> ConstraintArrays:
+        A = self._param_arrays()
+        return ConstraintArrays(*(A[k] for k in ConstraintArrays._fields))
+
+    def _advance(self, rng: np.random.Generator, state: ChainState, n: int,
+                 out: tuple[NDArray, ...] | None) -> tuple[ChainState, NDArray[np.int64]]:
+        """:meth:`run`, also returning [move code, accepted] of the last iteration."""
+        s = self.settings
+        d, N = self.n_features, self.likelihood.mean_features.shape[0]
+        st = _copy_state(state)
+        out = self.new_buffers(0) if out is None else Draws(*out)
+        randoms = self.draw_randoms(rng, n)
+        scratch = Scratch(np.empty(N), np.empty(N), np.empty(self.n_params), np.zeros(d, dtype=np.bool_), np.zeros(d),
+                          np.zeros(2, np.int64))
+        schedule = Schedule(MODES[s.method], int(n), int(st.iteration), s.burn_in_, s.thin_,
+                            ADAPT_EVERY if s.adapt_ else 0)
+        _mcmc.advance(schedule, st.position, self.likelihood.kernel_bundle(), self._constraint_arrays, self._moves,
+                      self._model, Randoms(*randoms), st.adaptation, out, st.best, st.counts, scratch)
+        return st._replace(iteration=st.iteration + n), scratch.last
 
     def run(self, rng: np.random.Generator, state: ChainState, n: int, out: tuple[NDArray, ...] | None = None) -> ChainState:
         """Advance ``n`` iterations in compiled code; ``out`` (from :meth:`new_buffers`) receives kept draws."""
-        s = self.settings
-        lik = self.likelihood
-        d = self.n_features
-        st = _copy_state(state)
-        out = self.new_buffers(0) if out is None else out
-        u_j, u_mv, z, u_acc, zt, *rest = self.draw_randoms(rng, n)
-        zj = rest[0] if rest else np.zeros((1, 1))
-        pkind, prm = self._prior_arrays()
-        A = self._param_arrays()
-        scal = np.array([st.log_likelihood, st.log_prior])
-        map_scal = np.array([st.map_log_posterior, st.map_log_likelihood])
-        N = lik.mean_features.shape[0]
-        _mcmc.run_chunk(
-            _MODE[s.method], n, st.iteration, s.burn_in_, s.thin_, 500 if s.adapt_ else 0, self.d_known,
-            bool(s.naive_counts),
-            st.indicators, st.penalty_weights, st.parameters, st.scaled_returns, scal, st.features_T, lik.beta, lik.power,
-            *lik.kernel_args(),
-            A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"], A["sorted_vals"], A["states"], A["offsets"],
-            A["inv_len"], A["lo"], A["hi"],
-            u_j, u_mv, z, u_acc, zt, self._cand, s.p_flip, self.p_theta_, int(s.f_s), s.indicator_prior.log_odds,
-            pkind, prm, st.sigma, st.q_mean, st.q_scale, st.sigma_theta, st.q_theta_mean, st.q_theta_scale,
-            st.adapt_stats, st.adapt_theta_stats, *out,
-            st.map_indicators, st.map_penalty_weights, st.map_parameters, map_scal, st.counts,
-            np.empty(N), np.empty(N), np.empty(self.n_params), np.zeros(d, dtype=np.bool_), np.zeros(d),
-            float(s.p_joint), zj, st.joint_cov, st.joint_stats, st.joint_scale)
-        return st._replace(log_likelihood=float(scal[0]), log_prior=float(scal[1]), iteration=st.iteration + n,
-                           map_log_posterior=float(map_scal[0]), map_log_likelihood=float(map_scal[1]))
+        return self._advance(rng, state, n, out)[0]
 
     def step(self, rng: np.random.Generator, state: ChainState) -> tuple[ChainState, StepInfo]:
         """One Metropolis-Hastings iteration (pure: ``state`` is not modified)."""
-        new = self.run(rng, state, 1)
-        dc = new.counts - state.counts
-        move = "flip" if dc[0] else ("weight" if dc[2] else ("parameter" if dc[5] else "none"))
-        return new, StepInfo(move, bool(dc[1] or dc[3] or dc[6]), new.log_likelihood)
+        new, last = self._advance(rng, state, 1, None)
+        return new, StepInfo(MOVE_NAMES[int(last[0])], bool(last[1]), new.log_likelihood)
 
 
 def _returns(FbT: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -563,7 +583,11 @@ def _returns(FbT: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[
 
 
 def _copy_state(s: ChainState) -> ChainState:
-    return ChainState(*(x.copy() if isinstance(x, np.ndarray) else x for x in s))
+    """Every array copied: the compiled loop mutates them in place."""
+    def fresh(bundle: Any) -> Any:
+        return type(bundle)(*(x.copy() for x in bundle))
+
+    return ChainState(fresh(s.position), int(s.iteration), fresh(s.adaptation), fresh(s.best), s.counts.copy())
 
 
 def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | None = None, *,

@@ -1,0 +1,100 @@
+"""Checkpoints of an ICL run (``checkpoint.pt``: tensors and plain values only, read with
+``torch.load(weights_only=True)``, so a file put into a run directory by someone else cannot run code) and its
+JSON files, all written atomically."""
+
+from __future__ import annotations
+
+import platform
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+try:
+    import torch
+except ImportError as exc:  # pragma: no cover - exercised only without the extra
+    raise ImportError('pbicrl.baselines.icl needs PyTorch: pip install "pbicrl[rl]"') from exc
+
+from pbicrl._atomic import atomic_path, write_json
+
+__all__ = ["CHECKPOINT", "versions", "write_json_file", "load_checkpoint", "save_checkpoint"]
+
+CHECKPOINT = "checkpoint.pt"
+"""File name of the resume point in a run directory."""
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and of the libraries a run depends on (recorded in ``budget.json``)."""
+    out = {"python": platform.python_version()}
+    for mod in ("numpy", "torch", "gymnasium", "mujoco"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:  # noqa: BLE001, S110 - version reporting must never fail a run
+            pass
+    return out
+
+
+def write_json_file(path: Path, obj: Any) -> None:
+    """Write ``obj`` as JSON atomically (NumPy values as lists, anything else JSON lacks as text)."""
+    write_json(path, obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+
+
+def _plain_state(obj: Any) -> Any:
+    """A copy of a checkpoint with NumPy values made plain (Python numbers, tensors), so that it loads with
+    ``torch.load(weights_only=True)``, which refuses every global it does not know."""
+    if isinstance(obj, dict):
+        return {k: _plain_state(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_plain_state(v) for v in obj]
+    if isinstance(obj, tuple):
+        return tuple(_plain_state(v) for v in obj)
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return torch.as_tensor(obj)
+    return obj
+
+
+def _numpy_safe_globals() -> list[Any]:
+    """NumPy scalar reconstruction, for checkpoints written before :func:`_plain_state` held NumPy numbers. These
+    globals build dtypes and scalars from bytes; anything else a pickle might ask for stays refused."""
+    out: list[Any] = [np.dtype]
+    core = getattr(np, "_core", None) or getattr(np, "core", None)
+    scalar = getattr(getattr(core, "multiarray", None), "scalar", None)
+    if scalar is not None:
+        out.append(scalar)
+    dtypes = getattr(np, "dtypes", None)
+    if dtypes is not None:
+        for name in ("Float64DType", "Float32DType", "Int64DType", "Int32DType", "BoolDType"):
+            if hasattr(dtypes, name):
+                out.append(getattr(dtypes, name))
+    return out
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """Read a checkpoint of :func:`run_icl` safely (``weights_only=True``); errors name the file."""
+    import pickle
+
+    ctx = getattr(torch.serialization, "safe_globals", None)
+    try:
+        if ctx is not None:
+            with ctx(_numpy_safe_globals()):
+                obj = torch.load(path, weights_only=True, map_location="cpu")
+        else:  # older torch: tensors and plain values only
+            obj = torch.load(path, weights_only=True, map_location="cpu")
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()] or [type(exc).__name__]
+        # torch's own text suggests weights_only=False, exactly what must not be done with a file of unknown origin
+        first = next((ln for ln in lines if "global" in ln.lower() and "weights_only" not in ln), lines[0])
+        raise ValueError(f"out_dir: {path} cannot be loaded safely ({type(exc).__name__}: {first[:200]}); it is not "
+                         "a checkpoint of this pbicrl version, or it is damaged. Delete it to start the run "
+                         "afresh") from None
+    if not isinstance(obj, dict) or "state" not in obj:
+        raise ValueError(f"out_dir: {path} is not an ICL checkpoint (no 'state'); delete it to start afresh")
+    return obj
+
+
+def save_checkpoint(obj: Any, path: Path) -> None:
+    """``torch.save`` of ``obj`` (NumPy values made plain, see :func:`_plain_state`) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        torch.save(_plain_state(obj), tmp)

@@ -1,0 +1,79 @@
+"""``pbicrl train-safe``: the command line of :func:`pbicrl.safe_rl.train_safe` (imports nothing optional until it
+runs)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from pbicrl.safe_rl import COSTS, DEFAULT_COST_LIMIT, ENVS, train_safe
+
+__all__ = ["add_subcommands"]
+
+
+def _cmd_train_safe(args: argparse.Namespace) -> int:
+    constraints = [c.strip() for c in args.constraints.split(",") if c.strip()] if args.constraints else None
+    try:
+        s = train_safe(args.out, args.env, args.steps, args.cost_limit, run=args.run, cost=args.cost, mode=args.mode,
+                       quantile=args.quantile, constraints=constraints, seed=args.seed, eval_episodes=args.eval_episodes,
+                       warmup_steps=args.warmup_steps,
+                       progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"pbicrl: interrupted; checkpoint in {args.out}, rerun the same command to resume", file=sys.stderr)
+        return 130
+    print(json.dumps({k: s[k] for k in ("env", "cost", "cost_limit", "steps", "lambda", "last_10_updates", "evaluation",
+                                        "runtime_s")}, indent=2))
+    return 0
+
+
+def add_subcommands(sub: Any) -> None:
+    """Register ``pbicrl train-safe`` (imports nothing optional until it runs)."""
+    from pbicrl.cli.argtypes import nonneg_int, positive_int
+
+    def limit(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+        if not (math.isfinite(v) and v >= 0):
+            raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+        return v
+
+    def unit(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+        if not 0.0 < v < 1.0:
+            raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
+        return v
+
+    p = sub.add_parser("train-safe", help="train a policy under an inferred constraint (PPO-Lagrangian; extras rl, envs)",
+                       description="Constrained RL on the cost of an inferred constraint: maximise the nominal return "
+                                   "subject to expected cost per episode <= --cost-limit. Resumable: rerun the same "
+                                   "command to continue.")
+    p.add_argument("run", nargs="?", type=Path, help="run directory of pbicrl infer (needed for --cost inferred)")
+    p.add_argument("--env", required=True, choices=ENVS, help="environment (its nominal reward is the objective)")
+    p.add_argument("--steps", required=True, type=positive_int, help="total environment steps")
+    p.add_argument("--cost-limit", type=limit, default=DEFAULT_COST_LIMIT,
+                   help=f"budget D on the expected cost per episode (default {DEFAULT_COST_LIMIT:g})")
+    p.add_argument("--out", required=True, type=Path, help="run directory (checkpoint, progress.log, budget.json, ...)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
+    p.add_argument("--mode", choices=["indicator", "probability", "sample", "penalty"], default="indicator",
+                   help="how the posterior becomes a cost (default indicator: 1 per step in a selected constraint)")
+    p.add_argument("--quantile", type=unit, default=0.5, help="penalty mode: quantile of w_p | c=1 (default 0.5)")
+    p.add_argument("--constraints", help="comma-separated constraints to cost (default: the selected set, or every "
+                                         "feature with P(c=1) > 0 for probability/sample)")
+    p.add_argument("--cost", choices=COSTS, default="inferred",
+                   help="inferred (default): the run's constraint; true: the environment's true constraint "
+                        "(reference); none: nominal only")
+    p.add_argument("--warmup-steps", type=nonneg_int, default=0,
+                   help="steps of nominal training (zero cost) before the cost is on (default 0)")
+    p.add_argument("--eval-episodes", type=nonneg_int, default=20,
+                   help="episodes of the final policy to evaluate into summary.json (default 20)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr (progress.log still has them)")
+    p.set_defaults(func=_cmd_train_safe)
