@@ -31,6 +31,7 @@ from numba import njit
 
 import pbicrl
 from pbicrl.inference import likelihood_kernels as _kernels
+from pbicrl.inference.codes import C_EVALS
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.preferences import Preferences
 from pbicrl.inference.priors import WeightPrior
@@ -47,7 +48,7 @@ def time_chain(lik: PreferenceLikelihood, method: str, n: int, prior: WeightPrio
     kernel.run(np.random.default_rng(1), state, 2)  # compile outside the timing
     t = time.perf_counter()
     end = kernel.run(np.random.default_rng(1), state, n)
-    return time.perf_counter() - t, int(end.counts[4])
+    return time.perf_counter() - t, int(end.counts[C_EVALS])
 
 
 def big_problem(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -152,7 +153,7 @@ def main() -> None:
         t = time.perf_counter()
         end = kernel.run(np.random.default_rng(seed), state, m, buf)
         times.append(time.perf_counter() - t)
-        evals += int(end.counts[4])
+        evals += int(end.counts[C_EVALS])
         k = int(buf[5][0])
         for r in np.linspace(0, k - 1, 50).astype(int):  # states the chain visited (kept draws)
             w = np.concatenate([lik.nominal_weights]) + buf[0][r] * buf[1][r]

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from pbicrl.inference.codes import C_EVALS, C_T_PROP
 from pbicrl.inference.constraints import AxisHalfspace, ConstraintSet
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.samplers import build_kernel
@@ -42,8 +43,8 @@ def main() -> None:
             end = kernel.run(np.random.default_rng(1), state, n)
             dt = time.perf_counter() - t
             rows.append({"method": method, "counts": "naive O(N T)" if naive else "binary search O(N log T)",
-                         "seconds_per_chain": dt, "theta_proposals": int(end.counts[5]),
-                         "likelihood_evals": int(end.counts[4])})
+                         "seconds_per_chain": dt, "theta_proposals": int(end.counts[C_T_PROP]),
+                         "likelihood_evals": int(end.counts[C_EVALS])})
     print(f"\n{'sampler':<8} {'parameter counts':<26} {'s/chain':>8} {'theta proposals':>16} {'lik. evals':>11}")
     for r in rows:
         print(f"{r['method']:<8} {r['counts']:<26} {r['seconds_per_chain']:8.2f} {r['theta_proposals']:16,} {r['likelihood_evals']:11,}")

@@ -53,6 +53,7 @@ def main() -> None:
 
     import pbicrl
     from pbicrl.inference import likelihood_kernels as _kernels
+    from pbicrl.inference.codes import C_EVALS, C_T_PROP, COUNTERS
     from pbicrl.inference.constraints import AxisHalfspace, ConstraintSet
     from pbicrl.inference.likelihood import PreferenceLikelihood
     from pbicrl.inference.samplers import build_kernel
@@ -89,7 +90,7 @@ def main() -> None:
     print(f"\nwall {wall:.0f} s (identify + sampling), CPU {cpu:.0f} s (all processes); worst R-hat {worst['rhat']}, "
           f"smallest bulk ESS {ess_min}, tail ESS {worst['ess_tail']}"
           + (f"; {ess_min / wall:.2f} bulk effective samples per wall second" if ess_min else ""))
-    print(f"move counts over all chains: {dict(zip(('flip_prop', 'flip_acc', 'w_prop', 'w_acc', 'evals', 'theta_prop', 'theta_acc'), counts.tolist()))}")
+    print(f"move counts over all chains: {dict(zip(COUNTERS, counts.tolist()))}")
 
     # ---- profile: what one move costs at kept draws spread over the posterior (the cost of an evaluation grows
     # with the spread of the returns, i.e. with the wall's penalty), and the share of the chains' CPU it explains
@@ -121,14 +122,14 @@ def main() -> None:
                          A["sorted_vals"], A["states"], A["offsets"], A["inv_len"], col, False), 0.2)})
     per_eval = float(np.mean([p_["ms_eval"] for p_ in prof])) / 1e3
     per_col = float(np.mean([p_["ms_recount"] for p_ in prof])) / 1e3
-    share_eval = counts[4] * per_eval / cpu
-    share_col = counts[5] * per_col / cpu
+    share_eval = counts[C_EVALS] * per_eval / cpu
+    share_col = counts[C_T_PROP] * per_col / cpu
     print("profile at kept draws (first, middle, last of each chain):")
     for p_ in prof:
         print(f"  penalty {p_['penalty']:9.2f}  theta {p_['theta']:6.3f}  spread {p_['spread']:7.1f} nats  "
               f"{p_['ms_eval']:7.3f} ms per evaluation  {p_['ms_recount']:6.3f} ms per recount")
     print(f"mean {per_eval * 1e3:.3f} ms per grouped evaluation, {per_col * 1e3:.3f} ms per recount of the wall "
-          f"feature (param_column); {counts[4]:,} evaluations ~ {share_eval:.0%} and {counts[5]:,} recounts ~ "
+          f"feature (param_column); {counts[C_EVALS]:,} evaluations ~ {share_eval:.0%} and {counts[C_T_PROP]:,} recounts ~ "
           f"{share_col:.0%} of all CPU (the rest: identify, start-up, compilation cache, diagnostics, bookkeeping)")
     out = {"n_per_group": args.n_per_group, "length": args.length, "iterations": args.iterations,
            "chains": args.chains, "jobs": args.jobs, "settings": extra, "data_s": t_data, "wall_s": wall,

@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from pbicrl.inference.codes import C_EVALS
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.samplers import build_kernel
 from pbicrl.inference.samplers.reference import reference_chain
@@ -73,7 +74,7 @@ def main() -> None:
         t = time.perf_counter()
         end = kernel.run(np.random.default_rng(1), state, n)
         dt = time.perf_counter() - t
-        evals = int(end.counts[4])
+        evals = int(end.counts[C_EVALS])
         rows.append({"implementation": f"compiled ({method})", "seconds_per_chain": dt, "likelihood_evals": evals,
                      "pair_evals_per_s": evals * pairs / dt, "us_per_iteration": dt / n * 1e6})
 

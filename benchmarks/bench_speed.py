@@ -58,6 +58,7 @@ def _ranked_features(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _time_chain(lik: Any, method: str, n: int, reps: int) -> dict[str, float]:
+    from pbicrl.inference.codes import C_EVALS
     from pbicrl.inference.samplers import build_kernel
 
     kernel = build_kernel(lik, method=method, n_iterations=n)
@@ -69,7 +70,7 @@ def _time_chain(lik: Any, method: str, n: int, reps: int) -> dict[str, float]:
         end = kernel.run(np.random.default_rng(1), state, n)
         wall.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)
-    return {"wall_s": min(wall), "cpu_s": min(cpu), "evals": int(end.counts[4]), "iterations": n}
+    return {"wall_s": min(wall), "cpu_s": min(cpu), "evals": int(end.counts[C_EVALS]), "iterations": n}
 
 
 def _numpy_loop(lik: Any, m: int) -> dict[str, float]:

@@ -253,7 +253,7 @@ def test_complex_bytes_and_objects_are_never_silently_converted(tmp_path):
 
 def test_thousands_of_single_trajectory_groups_are_refused_with_the_number(tmp_path):
     n = 20_000
-    with pytest.raises(DatasetError, match=r"group: 20,000 distinct groups.*3\.0 GiB.*at most 1,000") as err:
+    with pytest.raises(DatasetError, match=r"group: 20,000 distinct groups; at most 1,000 .*199,990,000 of them") as err:
         Dataset(features=np.ones((n, 1)), offsets=np.arange(n + 1), group=np.arange(1, n + 1))
     assert "Merge the labels" in str(err.value)
     k = MAX_GROUPS

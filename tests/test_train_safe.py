@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import threading
 
 import numpy as np
 import pytest
@@ -104,6 +107,37 @@ def test_warmup_keeps_the_cost_off(tmp_path):
     assert "warm-up over at 256 steps" in (tmp_path / "w" / "progress.log").read_text()
     with pytest.raises(ValueError, match="warmup_steps: must be an integer >= 0"):
         train_safe(tmp_path / "v", "point_mass", 512, run=d, warmup_steps=-1, progress=False)
+
+
+def test_sigterm_writes_a_checkpoint_then_a_rerun_resumes(tmp_path):
+    out = tmp_path / "sig"
+    done_waiting = threading.Event()
+
+    def send_sigterm_once_training_runs() -> None:
+        # the handler is installed before the first update's progress line: only then is SIGTERM safe
+        log = out / "progress.log"
+        while not done_waiting.wait(0.05):
+            if log.is_file() and "steps 128/" in log.read_text():
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+
+    before = signal.getsignal(signal.SIGTERM)
+    thread = threading.Thread(target=send_sigterm_once_training_runs, daemon=True)
+    thread.start()
+    try:
+        with pytest.raises(KeyboardInterrupt, match="train-safe interrupted at"):
+            train_safe(out, "point_mass", 10**7, run=None, cost="none", ppo=SMALL, eval_episodes=0, progress=False,
+                       log_every_s=0.0)
+    finally:
+        done_waiting.set()
+        thread.join()
+    assert signal.getsignal(signal.SIGTERM) == before  # the run's handler is gone again
+    budget = json.loads((out / "budget.json").read_text())
+    done = budget["done_steps"]
+    assert budget["status"] == "interrupted" and 128 <= done < 10**7
+    assert f"interrupted at {done} steps; checkpoint written" in (out / "progress.log").read_text()
+    s = train_safe(out, "point_mass", done + 128, run=None, cost="none", ppo=SMALL, eval_episodes=0, progress=False)
+    assert s["steps"] == done + 128 and s["sessions"] == 2
 
 
 def test_bad_settings_write_nothing(nav_run, tmp_path):

@@ -34,7 +34,6 @@ import hashlib
 import json
 import math
 import os
-import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -44,6 +43,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
+from pbicrl.cli.deprecated import moved_to_cli
 
 __all__ = [
     "COSTS",
@@ -355,18 +357,6 @@ def _file_sha256(paths: Sequence[Path]) -> str:
     return h.hexdigest()
 
 
-def _versions() -> dict[str, str]:
-    import platform
-
-    out = {"python": platform.python_version()}
-    for mod in ("numpy", "torch", "gymnasium", "mujoco"):
-        try:
-            out[mod] = __import__(mod).__version__
-        except Exception:  # noqa: BLE001, S110 - version reporting must never fail a run
-            pass
-    return out
-
-
 def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit: float = DEFAULT_COST_LIMIT, *,
                run: str | os.PathLike[str] | None = None, cost: str = "inferred", mode: str = "indicator",
                quantile: float = 0.5, constraints: Sequence[str] | None = None, seed: int = 0,
@@ -489,12 +479,7 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
     # ---- training
     log_path = out / "progress.log"
 
-    def log(msg: str) -> None:
-        line = f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {msg}"
-        with open(log_path, "a") as fh:
-            fh.write(line + "\n")
-        if progress:
-            print(line, file=sys.stderr, flush=True)
+    log = progress_logger(log_path, echo=progress)
 
     from pbicrl.envs._mujoco_compat import quiet_mujoco_warnings
 
@@ -538,19 +523,9 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
             "cost_limit": cost_limit, "warmup_steps": warmup_steps, "requested_steps": steps,
             "done_steps": agent.num_steps,
             "wall_time_s": round(wall, 1), "steps_per_s": round((agent.num_steps - start_steps) / max(now - t_session, 1e-9), 1),
-            "sessions": sess, "ppo": cfg.to_dict(), "run": run_info, "versions": _versions()})
+            "sessions": sess, "ppo": cfg.to_dict(), "run": run_info, "versions": library_versions()})
 
-    stop = {"flag": False}
-    old: dict[int, Any] = {}
-
-    def _handler(signum: int, _frame: Any) -> None:
-        stop["flag"] = True
-
-    try:
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            old[sig] = signal.signal(sig, _handler)
-    except ValueError:  # not the main thread: no handlers, Ctrl-C raises where it lands
-        old = {}
+    stop = StopSignals().install()  # SIGTERM/SIGINT: checkpoint, then stop
     marks = {"log": time.time(), "ckpt": agent.num_steps}
 
     def on_update(p: Any, info: dict) -> bool:
@@ -572,20 +547,19 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
             save("running")
             marks["ckpt"] = p.num_steps
         if max_session_steps is not None and p.num_steps - start_steps >= int(max_session_steps):
-            stop["flag"] = True
-        return not stop["flag"]
+            stop.request()
+        return not stop.requested
 
     try:
         torch.set_num_threads(int(cfg.torch_threads))
         agent.learn(steps, callback=on_update)
-        if stop["flag"] and agent.num_steps < steps:
+        if stop.requested and agent.num_steps < steps:
             save("interrupted")
             log(f"interrupted at {agent.num_steps} steps; checkpoint written, rerun to resume")
             raise KeyboardInterrupt(f"train-safe interrupted at {agent.num_steps} steps; rerun to resume")
         save("evaluating")
     finally:
-        for sig, h in old.items():
-            signal.signal(sig, h)
+        stop.restore()
         agent.close()
 
     # ---- final policy, evaluation, summary
@@ -623,13 +597,4 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
     return summary
 
 
-def __getattr__(name: str) -> Any:
-    if name == "add_subcommands":  # the command line moved to pbicrl.cli.train_safe
-        from importlib import import_module
-
-        from pbicrl.errors import warn
-
-        warn("pbicrl.safe_rl.add_subcommands is deprecated and will be removed in pbicrl 0.3: "
-             "use pbicrl.cli.train_safe.add_subcommands")
-        return import_module("pbicrl.cli.train_safe").add_subcommands
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved_to_cli(__name__, {"add_subcommands": "pbicrl.cli.train_safe"})  # the command line moved

@@ -179,3 +179,53 @@ def test_cli_suggest_errors(run_and_pool, capsys, tmp_path):
     bad.write_text("not a zip")
     assert main(["suggest", str(tmp / "run"), "--pool", str(bad)]) == 2
     assert "not a readable .npz" in capsys.readouterr().err
+
+
+def test_additive_margins_go_in_as_offsets_with_the_same_numbers_as_the_matrix():
+    from pbicrl.analysis.suggest import Z_HIGH, Z_LOW, Z_STEP, _slot_logits
+    from pbicrl.inference.preferences import Margins
+
+    rng = np.random.default_rng(3)
+    K = 7
+    a = rng.normal(size=20)
+    gitems = rng.permutation(20).astype(np.int64)
+    goff = np.array([0, 3, 5, 9, 12, 14, 17, 20], dtype=np.int64)
+    m = Margins.from_gaps(rng.uniform(0.0, 2.0, K - 1))
+    ac = rng.normal(size=5)
+    by_matrix, by_offsets = np.empty((5, K)), np.empty((5, K))
+    _slot_logits(a, gitems, goff, np.ascontiguousarray(m.matrix), np.zeros(0), ac, Z_LOW, Z_HIGH, Z_STEP, by_matrix)
+    _slot_logits(a, gitems, goff, np.zeros((0, 0)), m.offsets, ac, Z_LOW, Z_HIGH, Z_STEP, by_offsets)
+    np.testing.assert_array_equal(by_offsets, by_matrix)  # o_l - o_k is exactly the matrix entry
+
+
+def test_a_run_over_many_groups_suggests_from_its_recorded_gaps_without_a_k_by_k_matrix(monkeypatch):
+    """600 single-trajectory groups: the run records only the 599 consecutive gaps (``Margins.as_dict`` beyond 64
+    groups); suggest reads them back as gaps and never builds the 600 x 600 matrix (checked by refusing it)."""
+    import pbicrl.analysis.suggest  # noqa: F401 - the module under test, compiled before the patch
+    from pbicrl.inference.preferences import Margins
+
+    K = 600
+    rng = np.random.default_rng(0)
+    F = np.column_stack([np.linspace(2.0, 0.0, K), rng.uniform(size=K)])
+    ds = Dataset.from_trajectories([f[None, :] for f in F], np.arange(1, K + 1), feature_names=["speed", "region"],
+                                   nominal_weights=[1.0, 0.0])
+    gaps = np.full(K - 1, 0.01)
+    recorded = Margins.from_gaps(gaps).as_dict()
+    assert len(recorded) == K - 1
+    post = _FakeRun(np.array([[[0, 0], [0, 1]]], dtype=np.int8), np.array([[[0.0, 0.0], [0.0, -3.0]]]),
+                    ("speed", "region"), {"beta": 1.0, "nominal_weights": [1.0, 0.0]}, {"margins": recorded})
+    pool = Dataset.from_trajectories([np.array([[1.0, 0.0]]), np.array([[1.0, 1.0]])], [0, 0],
+                                     feature_names=["speed", "region"], allow_unlabelled=True)
+    expected = group_probabilities(post.penalty_weights.reshape(-1, 2) * post.indicators.reshape(-1, 2) + [1.0, 0.0],
+                                   ds, pool.mean_features, margins=gaps)
+
+    def no_matrix(self):
+        raise AssertionError("the K x K margin matrix was built")
+
+    monkeypatch.setattr(Margins, "matrix", property(no_matrix))
+    got = suggest(post, ds, pool, n=2)
+    assert got.n_candidates == 2 and len(got.groups) == K
+    by_index = {s.index: s.group_probabilities for s in got.ranking}
+    for i in range(2):  # the mean over the draws of the same probabilities as with the gaps given directly
+        np.testing.assert_allclose(by_index[i], expected[:, i].mean(axis=0), rtol=1e-12, atol=1e-15)
+

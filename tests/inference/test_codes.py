@@ -56,7 +56,7 @@ def test_python_side_uses_the_codes():
         codes.PRIOR_FLAT, codes.PRIOR_NORMAL, codes.PRIOR_IMPROPER, codes.PRIOR_STUDENT_T)
     assert (lk.KIND_PAIRWISE, lk.KIND_GROUPED, lk.KIND_RANKED) == (codes.LIK_PAIRWISE, codes.LIK_GROUPED,
                                                                    codes.LIK_RANKED)
-    assert MOVE_CODES == codes.MOVES == EXPORT_MOVES  # export keeps its own copy for readers without the sampler
+    assert MOVE_CODES is codes.MOVES and EXPORT_MOVES is codes.MOVES  # one table, no copies
 
 
 def test_compiled_prior_density_branches_on_the_prior_codes():

@@ -63,6 +63,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from pbicrl._atomic import OutputExistsError, atomic_path
 from pbicrl.analysis.diagnostics import INSTALL_HINT, arviz_major, require_arviz
+from pbicrl.inference.codes import MOVES
 from pbicrl.runs import constraint_set_of
 
 if TYPE_CHECKING:
@@ -72,10 +73,10 @@ if TYPE_CHECKING:
     from pbicrl.inference.likelihood import PreferenceLikelihood
 
 __all__ = ["to_arviz", "to_netcdf", "pointwise_loglik", "pointwise_log_likelihood", "run_likelihood",
-           "MOVE_CODES", "POINTWISE_DRAWS"]
+           "run_margins", "MOVE_CODES", "POINTWISE_DRAWS"]
 
-MOVE_CODES = {0: "none", 1: "flip", 2: "weight", 3: "parameter"}
-"""Per-draw move type codes of ``sample_stats.move`` (as in :mod:`pbicrl.inference.samplers._mcmc`)."""
+MOVE_CODES = MOVES
+"""Per-draw move type codes of ``sample_stats.move``: :data:`pbicrl.inference.codes.MOVES`, the same object."""
 
 POINTWISE_DRAWS = 500
 """Default number of draws per chain for the pointwise log-likelihood (it costs one pass over all pairs each)."""
@@ -336,19 +337,35 @@ def pointwise_log_likelihood(post: Any, lik: "PreferenceLikelihood", *, constrai
 
 
 # --------------------------------------------------------------------------------------- rebuilding a run's likelihood
-def _run_margins(extra: Mapping[str, Any], n_groups: int) -> "Margins":
-    """The margins of ``extra["margins"]`` (``{"m12": ..}``, ``{"m1_2": ..}`` for 10+ groups; beyond 64 groups
-    :meth:`Margins.as_dict` lists only the consecutive gaps of additive margins, read back as gaps: no K x K)."""
+def run_margins(extra: Mapping[str, Any], n_groups: int, *, what: str = "export") -> "Margins":
+    """The margins a run recorded, ``extra["margins"]`` (``{"m12": ..}``, ``{"m1_2": ..}`` for 10+ groups; beyond
+    64 groups :meth:`Margins.as_dict` lists only the consecutive gaps of additive margins, read back as gaps: no
+    K x K). None recorded: zero margins.
+
+    Parameters
+    ----------
+    extra : mapping
+        The run's ``extra`` (``Posterior.extra``).
+    n_groups : int
+        :math:`K`, the number of groups of the dataset the run was made with.
+    what : str
+        Names the caller in error messages.
+
+    Raises
+    ------
+    ValueError
+        A key that is not a margin ``m<k>_<l>``, or one that does not fit ``n_groups``.
+    """
     from pbicrl.inference.preferences import Margins
 
     vals: dict[tuple[int, int], float] = {}
     for key, v in dict(extra.get("margins") or {}).items():
         hit = re.fullmatch(r"m(\d+)_(\d+)", key) or (re.fullmatch(r"m(\d)(\d)", key) if n_groups < 10 else None)
         if hit is None:
-            raise ValueError(f"export: cannot read margin {key!r} of the run")
+            raise ValueError(f"{what}: cannot read margin {key!r} of the run")
         k, l = int(hit.group(1)), int(hit.group(2))
         if not 1 <= k < l <= n_groups:
-            raise ValueError(f"export: margin {key!r} does not fit the dataset's {n_groups} groups")
+            raise ValueError(f"{what}: margin {key!r} does not fit the dataset's {n_groups} groups")
         vals[(k, l)] = float(v)
     consecutive = len(vals) == n_groups - 1 and all(l == k + 1 for k, l in vals)
     if not vals or (consecutive and n_groups > _AS_DICT_ALL_PAIRS):
@@ -394,7 +411,7 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
 
     wn = settings.get("nominal_weights")
     lik = PreferenceLikelihood.from_dataset(
-        dataset, margins=_run_margins(extra, dataset.n_groups),
+        dataset, margins=run_margins(extra, dataset.n_groups),
         protocol="all" if hit is None else int(hit.group(1)), seed=int(recorded("pairs_seed", 0)),
         nominal_weights=None if wn is None else np.asarray(wn, dtype=np.float64),
         beta=recorded("beta", 1.0), power=recorded("power", 1.0), likelihood=kind)  # type: ignore[arg-type]

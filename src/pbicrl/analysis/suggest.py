@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 from dataclasses import dataclass
 from typing import Any, Literal, Sequence
 
@@ -122,9 +121,19 @@ def _psi_at(psi: np.ndarray, z0: float, h: float, z: float) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def _slot_logits(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.ndarray, a_cand: np.ndarray,
-                 z_low: float, z_high: float, h: float, out: np.ndarray) -> None:
-    """``out[m, k] = log L_k - log L`` for candidate ``m`` (scaled return ``a_cand[m]``) in group ``k``."""
+def _margin(gmat: np.ndarray, goffs: np.ndarray, l: int, r: int) -> float:
+    """:math:`m_{lr}`: from the K x K matrix when one is given (shape (K, K)), else additive, ``o_r - o_l``
+    (the same floating-point value :attr:`Margins.matrix` would hold)."""
+    if gmat.shape[0] == 0:
+        return goffs[r] - goffs[l]
+    return gmat[l, r]
+
+
+@njit(cache=True, error_model="numpy")
+def _slot_logits(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmat: np.ndarray, goffs: np.ndarray,
+                 a_cand: np.ndarray, z_low: float, z_high: float, h: float, out: np.ndarray) -> None:
+    """``out[m, k] = log L_k - log L`` for candidate ``m`` (scaled return ``a_cand[m]``) in group ``k``; margins
+    as in :func:`_margin`."""
     K = goff.size - 1
     M = a_cand.size
     nmax = 1
@@ -157,16 +166,16 @@ def _slot_logits(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.
     for l in range(K - 1):
         m = -np.inf
         for r in range(l + 1, K):
-            m = max(m, lse[r] + gmarg[l, r])
+            m = max(m, lse[r] + _margin(gmat, goffs, l, r))
         acc = 0.0
         for r in range(l + 1, K):
-            acc += math.exp(lse[r] + gmarg[l, r] - m)
+            acc += math.exp(lse[r] + _margin(gmat, goffs, l, r) - m)
         loglam[l] = m + math.log(acc)
         mlo = 0.0
         mhi = 0.0
         for r in range(l + 1, K):
-            mlo = min(mlo, gmarg[l, r])
-            mhi = max(mhi, gmarg[l, r])
+            mlo = min(mlo, _margin(gmat, goffs, l, r))
+            mhi = max(mhi, _margin(gmat, goffs, l, r))
         lo = max(z_low, amin + mlo - loglam[l] - 2.0 * h)
         hi = min(z_high, amax + mhi - loglam[l] + 2.0 * h)
         j0 = int(math.floor((lo - z_low) / h))
@@ -195,7 +204,7 @@ def _slot_logits(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.
         for k in range(K):
             tot = 0.0
             for l in range(k):
-                tot += _chi_at(chi[l, :sizes[l]], z0s[l], h, ax + gmarg[l, k] - loglam[l])
+                tot += _chi_at(chi[l, :sizes[l]], z0s[l], h, ax + _margin(gmat, goffs, l, k) - loglam[l])
             if k < K - 1:
                 tot += _psi_at(psi[k, :sizes[k]], z0s[k], h, ax - loglam[k])
             out[c, k] = tot
@@ -209,10 +218,15 @@ def _group_arrays(labelled: Dataset) -> tuple[NDArray[np.int64], NDArray[np.int6
     return np.concatenate(items).astype(np.int64), offsets, labels
 
 
-def _margin_matrix(margins: Any, K: int) -> NDArray[np.float64]:
+def _margin_arrays(margins: Any, K: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(matrix, offsets)`` for :func:`_slot_logits`: additive margins (zeros, gaps) as their K offsets with an
+    empty matrix (O(K), nothing K x K); a general matrix as given."""
     from pbicrl.inference.preferences import Margins
 
-    return np.ascontiguousarray(Margins.parse(margins, K).matrix, dtype=np.float64)
+    m = Margins.parse(margins, K)
+    if m.offsets is not None:
+        return np.zeros((0, 0)), np.ascontiguousarray(m.offsets, dtype=np.float64)
+    return np.ascontiguousarray(m.matrix, dtype=np.float64), np.zeros(0)
 
 
 def group_probabilities(
@@ -257,14 +271,14 @@ def group_probabilities(
         raise ValueError(f"beta: expected a positive number, got {beta}")
     gitems, goff, labels = _group_arrays(data)
     K = len(labels)
-    gmarg = _margin_matrix(margins, K)
+    gmat, goffs = _margin_arrays(margins, K)
     F = data.mean_features
     out = np.empty((W.shape[0], Xc.shape[0], K))
     scratch = np.empty((Xc.shape[0], K))
     for s in range(W.shape[0]):
         a = np.ascontiguousarray(beta * (F @ W[s]))
         ac = np.ascontiguousarray(beta * (Xc @ W[s]))
-        _slot_logits(a, gitems, goff, gmarg, ac, Z_LOW, Z_HIGH, Z_STEP, scratch)
+        _slot_logits(a, gitems, goff, gmat, goffs, ac, Z_LOW, Z_HIGH, Z_STEP, scratch)
         z = scratch - scratch.max(axis=1, keepdims=True)
         p = np.exp(z)
         out[s] = p / p.sum(axis=1, keepdims=True)
@@ -392,24 +406,6 @@ class Suggestions:
         return "\n".join(rows)
 
 
-def _margins_of(posterior: Any, K: int) -> NDArray[np.float64]:
-    """The run's margins (``extra.margins``: ``{"m12": ...}``) as a K x K matrix."""
-    raw = (getattr(posterior, "extra", None) or {}).get("margins")
-    m = np.zeros((K, K))
-    if not isinstance(raw, dict):
-        return m
-    for key, value in raw.items():
-        hit = re.fullmatch(r"m(\d+)_(\d+)", str(key)) or (re.fullmatch(r"m(\d)(\d)", str(key)) if K < 10 else None)
-        if hit is None:
-            continue
-        k, l = int(hit.group(1)), int(hit.group(2))
-        if not (1 <= k < l <= K):
-            raise ValueError(f"margins: the run has a margin {key} but the labelled data have {K} groups; "
-                             "pass the dataset the run was made with (--data)")
-        m[k - 1, l - 1] = float(value)
-    return m
-
-
 def _pick_draws(n_total: int, max_draws: int) -> NDArray[np.int64]:
     """Evenly spaced draw indices (deterministic: no random choice of draws)."""
     if n_total <= max_draws:
@@ -494,7 +490,10 @@ def suggest(
     if wn.shape != (d,):
         raise ValueError(f"nominal_weights: expected {d} values, got {wn.size}")
     K = data.n_groups
-    gm = _margins_of(posterior, K) if margins is None else _margin_matrix(margins, K)
+    if margins is None:  # the run's, as K offsets when additive (nothing K x K)
+        from pbicrl.analysis.export import run_margins
+
+        margins = run_margins(getattr(posterior, "extra", None) or {}, K, what="margins")
     C = np.asarray(posterior.indicators).reshape(-1, d)
     Wp = np.asarray(posterior.penalty_weights, dtype=np.float64).reshape(-1, d)
     if C.shape[0] == 0:
@@ -502,7 +501,7 @@ def suggest(
     pick = _pick_draws(C.shape[0], int(max_draws))
     C, Wp = C[pick], Wp[pick]
     W = wn[None, :] + C * np.nan_to_num(Wp)
-    P = group_probabilities(W, data, pool.mean_features[idx], margins=gm, beta=beta)
+    P = group_probabilities(W, data, pool.mean_features[idx], margins=margins, beta=beta)
     gain = information_gain(P, C, target=target)
     order = np.lexsort((idx, -gain))[: int(n)]
     pbar = P.mean(axis=0)

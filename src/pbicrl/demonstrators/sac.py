@@ -27,21 +27,21 @@ from __future__ import annotations
 import json
 import math
 import os
-import platform
 import shutil
-import signal
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from pbicrl._atomic import atomic_dir, atomic_path, clean_stale_temporaries, write_text
+from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
 
 __all__ = ["SACConfig", "load_policy", "require_rl", "train_sac"]
 
 _CKPT = "checkpoint"
 _CKPT_OLD = "checkpoint.old"
+#: Libraries whose versions ``budget.json`` records (one that is missing is noted as unknown).
+_VERSIONED = ("numpy", "torch", "stable_baselines3", "gymnasium", "mujoco")
 
 
 def require_rl() -> tuple[Any, Any]:
@@ -65,16 +65,6 @@ def _is_finite(value: Any) -> bool:
         return math.isfinite(float(value))
     except (TypeError, ValueError):
         return False
-
-
-def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for mod in ("numpy", "torch", "stable_baselines3", "gymnasium", "mujoco"):
-        try:
-            out[mod] = __import__(mod).__version__
-        except Exception as exc:  # noqa: BLE001 - version reporting must never fail training
-            out[mod] = f"unknown ({type(exc).__name__})"
-    return out
 
 
 def _write_json_atomic(path: Path, obj: Any) -> None:
@@ -256,12 +246,7 @@ def train_sac(
                       init_from=None if init_from is None else str(init_from),
                       policy_kwargs=None if not policy_kwargs else {k: repr(v) for k, v in policy_kwargs.items()})
 
-    def log(msg: str) -> None:
-        line = f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {msg}"
-        with open(log_path, "a") as fh:
-            fh.write(line + "\n")
-        if progress:
-            print(line, file=sys.stderr, flush=True)
+    log = progress_logger(log_path, echo=progress)
 
     env = Monitor(env_fn())
     ckpt = _find_checkpoint(out_dir)
@@ -325,17 +310,8 @@ def train_sac(
 
     start_steps = int(model.num_timesteps)
     t_start = time.time()
-    stop = {"flag": False, "deadline": False}
-
-    def _handler(signum, _frame):  # stop at the next step; checkpoint is written below
-        stop["flag"] = True
-
-    old_handlers = {}
-    try:
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            old_handlers[sig] = signal.signal(sig, _handler)
-    except ValueError:  # not in the main thread: no signal handling
-        old_handlers = {}
+    stop = {"deadline": False}
+    signals = StopSignals().install()  # SIGTERM/SIGINT: stop at the next step; the checkpoint is written below
 
     def make_state(done: int) -> dict[str, Any]:
         return {"num_timesteps": done, "wall_time_s": wall_before + (time.time() - t_start),
@@ -349,7 +325,8 @@ def train_sac(
             "requested_steps": int(total_steps), "done_steps": done, "status": status,
             "wall_time_s": round(st["wall_time_s"], 1), "sessions": st["sessions"],
             "mean_steps_per_s": round(done / st["wall_time_s"], 2) if st["wall_time_s"] > 0 else None,
-            "hyperparameters": dict(hyper), "versions": _versions(), "metadata": metadata or {},
+            "hyperparameters": dict(hyper), "versions": library_versions(_VERSIONED, note_failures=True),
+            "metadata": metadata or {},
         })
 
     class _Cb(BaseCallback):
@@ -374,7 +351,7 @@ def train_sac(
                 write_budget(n, "running")
             if deadline is not None and time.time() >= deadline:
                 stop["deadline"] = True
-            return not (stop["flag"] or stop["deadline"])
+            return not (signals.requested or stop["deadline"])
 
     remaining = int(total_steps) - start_steps
     try:
@@ -385,10 +362,9 @@ def train_sac(
             model.learn(total_timesteps=remaining, callback=_Cb(), reset_num_timesteps=False,
                         log_interval=10**9, progress_bar=False)
     finally:
-        for sig, h in old_handlers.items():
-            signal.signal(sig, h)
+        signals.restore()
     done = int(model.num_timesteps)
-    if done < total_steps and (stop["flag"] or not stop["deadline"]):
+    if done < total_steps and (signals.requested or not stop["deadline"]):
         _save_checkpoint(model, out_dir, make_state(done))
         write_budget(done, "interrupted")
         log(f"interrupted at step {done}; checkpoint written")

@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from pbicrl.cli.deprecated import moved_to_cli
+
 __all__ = ["CloseLoopConfig", "EnvPlan", "default_config", "run"]
 
 EVAL_SEED = 20_240_513  # reset seeds of the evaluation episodes (the same for every policy)
@@ -331,14 +333,7 @@ def plot_paths(paths: dict[str, list[np.ndarray]], path: Path, seed: int) -> Non
     plt.close(fig)
 
 
-def __getattr__(name: str) -> Any:
-    if name == "main":  # the command line moved to pbicrl.cli.close_loop
-        from pbicrl.errors import warn
-
-        warn("pbicrl.experiments.close_loop.main is deprecated and will be removed in pbicrl 0.3: "
-             "use pbicrl.cli.close_loop.main")
-        return import_module("pbicrl.cli.close_loop").main
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved_to_cli(__name__, {"main": "pbicrl.cli.close_loop"})  # the command line moved
 
 
 if __name__ == "__main__":  # `python -m pbicrl.experiments.close_loop` (the documented command) still works

@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from pbicrl._atomic import write_json
+from pbicrl.cli.deprecated import moved_to_cli
 from pbicrl.experiments.tasks import (
     RESULT_FILE,
     OlderRuns,
@@ -489,13 +490,4 @@ def plan_sweep(spec: SweepSpec, *, force: bool = False, progress: bool = True) -
     return SweepResult(spec.out, records, executor="dry run", older=older)
 
 
-def __getattr__(name: str) -> Any:
-    if name == "add_subcommands":  # the command line moved to pbicrl.cli.sweep
-        from importlib import import_module
-
-        from pbicrl.errors import warn
-
-        warn("pbicrl.experiments.sweep.add_subcommands is deprecated and will be removed in pbicrl 0.3: "
-             "use pbicrl.cli.sweep.add_subcommands")
-        return import_module("pbicrl.cli.sweep").add_subcommands
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved_to_cli(__name__, {"add_subcommands": "pbicrl.cli.sweep"})  # the command line moved

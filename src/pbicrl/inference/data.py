@@ -64,9 +64,11 @@ __all__ = [
 ]
 
 MAX_GROUPS = 1000
-"""Most groups a dataset may have. Groups are compared pairwise (margins are a K x K matrix, every
-group pair a block of comparisons), so ranking thousands of single-trajectory groups is out of reach:
-K = 20,000 would need a 3 GiB margin matrix alone."""
+"""Most groups a dataset may have. The default likelihoods, ``identify`` and ``export`` hold additive margins
+as K offsets (nothing K x K) and run on 20,000 single-trajectory groups; what still grows with K^2 is the
+pairwise likelihood with sampled pairs (``pairs=n``: n pairs for each of the K(K-1)/2 group pairs, drawn in a
+loop over them), a general K x K margin matrix, and ``suggest`` (O(M K^2) time per draw for M candidates). The
+cap stays until those check their own sizes."""
 
 _FIELDS = ("features", "offsets", "group", "states", "actions", "feature_names", "nominal_weights", "group_names",
            "gap_relation", "skipped", "env_id")
@@ -621,9 +623,9 @@ class Dataset:
         if labels.size > MAX_GROUPS:
             K = int(labels.size)
             raise DatasetError(
-                f"group: {K:,} distinct groups; groups are compared pairwise (the margins alone are a "
-                f"{K:,} x {K:,} matrix, {_fmt_bytes(8.0 * K * K)}), so at most {MAX_GROUPS:,} groups are supported. "
-                "Merge the labels into a few ranked groups (e.g. by quantiles of your score)")
+                f"group: {K:,} distinct groups; at most {MAX_GROUPS:,} are supported (sampled pairs and active "
+                f"query selection visit every pair of groups: {K * (K - 1) // 2:,} of them here). Merge the labels "
+                "into a few ranked groups (e.g. by quantiles of your score)")
 
         states = None if self.states is None else _as_float_2d("states", self.states)
         if states is not None and states.shape[0] != S:

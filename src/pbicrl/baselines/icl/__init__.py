@@ -36,8 +36,9 @@ Needs torch and gymnasium (``pip install "pbicrl[rl,envs]"``).
 
 The package, one module per concern: :mod:`~.presets` (settings and budgets), :mod:`~.environments`,
 :mod:`~.network` (the constraint MLP), :mod:`~.losses` (objective, mixture weights, location),
-:mod:`~.checkpoint`, :mod:`~.signals` (stop on SIGTERM/SIGINT), :mod:`~.run` (:func:`run_icl`) and
-:mod:`~.task` (the ``reproduce-icl`` task kind). Every public name is importable from here.
+:mod:`~.checkpoint`, :mod:`~.run` (:func:`run_icl`) and :mod:`~.task` (the ``reproduce-icl`` task kind). Every
+public name is importable from here. Stopping on SIGTERM/SIGINT, the progress log and the recorded versions are
+:mod:`pbicrl.baselines.session`, shared with ``train-safe`` and the SAC demonstrators.
 """
 
 from __future__ import annotations

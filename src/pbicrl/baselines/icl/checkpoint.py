@@ -4,7 +4,6 @@ JSON files, all written atomically."""
 
 from __future__ import annotations
 
-import platform
 from pathlib import Path
 from typing import Any
 
@@ -17,21 +16,10 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
 
 from pbicrl._atomic import atomic_path, write_json
 
-__all__ = ["CHECKPOINT", "versions", "write_json_file", "load_checkpoint", "save_checkpoint"]
+__all__ = ["CHECKPOINT", "write_json_file", "load_checkpoint", "save_checkpoint"]
 
 CHECKPOINT = "checkpoint.pt"
 """File name of the resume point in a run directory."""
-
-
-def versions() -> dict[str, str]:
-    """Versions of Python and of the libraries a run depends on (recorded in ``budget.json``)."""
-    out = {"python": platform.python_version()}
-    for mod in ("numpy", "torch", "gymnasium", "mujoco"):
-        try:
-            out[mod] = __import__(mod).__version__
-        except Exception:  # noqa: BLE001, S110 - version reporting must never fail a run
-            pass
-    return out
 
 
 def write_json_file(path: Path, obj: Any) -> None:

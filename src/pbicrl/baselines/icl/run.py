@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -21,13 +20,13 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
     raise ImportError('pbicrl.baselines.icl needs PyTorch: pip install "pbicrl[rl]"') from exc
 
 from pbicrl._atomic import atomic_path
-from pbicrl.baselines.icl.checkpoint import CHECKPOINT, load_checkpoint, save_checkpoint, versions, write_json_file
+from pbicrl.baselines.icl.checkpoint import CHECKPOINT, load_checkpoint, save_checkpoint, write_json_file
 from pbicrl.baselines.icl.environments import ICLEnv, icl_env
 from pbicrl.baselines.icl.losses import accrual, constraint_location, constraint_loss, discount_matrix, mixture_weights
 from pbicrl.baselines.icl.network import ConstraintNet
 from pbicrl.baselines.icl.presets import ICLConfig, icl_preset
-from pbicrl.baselines.icl.signals import StopSignals
 from pbicrl.baselines.ppo_lagrangian import PPOLagrangian
+from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
 
 __all__ = ["run_icl"]
 
@@ -114,12 +113,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
     torch.set_num_threads(int(cfg.ppo.torch_threads))
     torch.manual_seed(seed)
 
-    def log(msg: str) -> None:
-        line = f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {msg}"
-        with open(log_path, "a") as fh:
-            fh.write(line + "\n")
-        if progress:
-            print(line, file=sys.stderr, flush=True)
+    log = progress_logger(log_path, echo=progress)
 
     allc = np.concatenate(expert)
     h = hashlib.sha256(np.asarray([len(t) for t in expert], dtype=np.int64).tobytes())
@@ -180,7 +174,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
             "status": status, "env": spec.name, "seed": seed, "n_expert": len(expert),
             "requested_ppo_steps": cfg.total_steps, "done_ppo_steps": ppo.num_steps, "rounds": cfg.rounds,
             "rounds_done": state["round"], "wall_time_s": round(st["wall_time_s"], 1), "sessions": st["sessions"],
-            "config": cfg.to_dict(), "versions": versions()})
+            "config": cfg.to_dict(), "versions": library_versions()})
 
     stop = StopSignals().install()  # SIGTERM/SIGINT: checkpoint, then stop
 

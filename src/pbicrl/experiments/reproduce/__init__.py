@@ -15,10 +15,10 @@ The package: :mod:`~.paper` (the paper's numbers), :mod:`~.configs` (models, run
 from __future__ import annotations
 
 import time
-from importlib import import_module
 from pathlib import Path
 from typing import Any, Callable
 
+from pbicrl.cli.deprecated import moved_to_cli
 from pbicrl.experiments.reproduce.configs import Context
 from pbicrl.experiments.reproduce.icl import exp_icl
 from pbicrl.experiments.reproduce.navigation import exp_fetch_reach, exp_grid, exp_point_mass
@@ -110,11 +110,4 @@ def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = Fal
     return reports
 
 
-def __getattr__(name: str) -> Any:
-    if name == "add_subcommands":  # the command line moved to pbicrl.cli.reproduce
-        from pbicrl.errors import warn
-
-        warn("pbicrl.experiments.reproduce.add_subcommands is deprecated and will be removed in pbicrl 0.3: "
-             "use pbicrl.cli.reproduce.add_subcommands")
-        return import_module("pbicrl.cli.reproduce").add_subcommands
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved_to_cli(__name__, {"add_subcommands": "pbicrl.cli.reproduce"})  # the command line moved

@@ -1,0 +1,95 @@
+"""What every long training run does the same way, one session at a time: ICL (:mod:`pbicrl.baselines.icl`),
+``train-safe`` (:mod:`pbicrl.safe_rl`) and the SAC demonstrators (:mod:`pbicrl.demonstrators.sac`).
+
+* :class:`StopSignals` - SIGTERM and SIGINT note a stop request, so the run writes its checkpoint and stops;
+* :func:`progress_logger` - timestamped lines appended to the run's ``progress.log`` (and echoed to stderr);
+* :func:`library_versions` - versions of Python and the libraries a run depends on, for its ``budget.json``.
+
+Standard library only, so importing it needs no optional extra.
+"""
+
+from __future__ import annotations
+
+import platform
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = ["StopSignals", "library_versions", "progress_logger"]
+
+
+class StopSignals:
+    """While installed, SIGTERM and SIGINT set :attr:`requested` instead of ending the process.
+
+    The run polls :attr:`requested` between updates, checkpoints and stops; :meth:`restore` puts the previous
+    handlers back. Outside the main thread (where handlers cannot be set) nothing is installed, and Ctrl-C
+    raises where it lands.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old: dict[int, Any] = {}
+
+    def install(self) -> StopSignals:
+        """Install the handlers; returns ``self``."""
+        try:
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                self._old[sig] = signal.signal(sig, self._handler)
+        except ValueError:  # not the main thread
+            self._old = {}
+        return self
+
+    def _handler(self, signum: int, frame: Any) -> None:
+        self.requested = True
+
+    def request(self) -> None:
+        """Ask the run to stop at its next check (as a signal would)."""
+        self.requested = True
+
+    def restore(self) -> None:
+        """Put the handlers that were there before :meth:`install` back."""
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+        self._old = {}
+
+
+def progress_logger(path: Path, *, echo: bool) -> Callable[[str], None]:
+    """A ``log(message)`` that appends ``<UTC time> <message>`` to ``path`` and, with ``echo``, prints it to
+    stderr.
+
+    The file is opened per line, so a killed run leaves every line it logged and a resumed one appends.
+    """
+
+    def log(msg: str) -> None:
+        line = f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {msg}"
+        with open(path, "a") as fh:
+            fh.write(line + "\n")
+        if echo:
+            print(line, file=sys.stderr, flush=True)
+
+    return log
+
+
+def library_versions(modules: Sequence[str] = ("numpy", "torch", "gymnasium", "mujoco"), *,
+                     note_failures: bool = False) -> dict[str, str]:
+    """Versions of Python and of ``modules``, for a run's ``budget.json``.
+
+    Parameters
+    ----------
+    modules : sequence of str
+        Modules to report (imported if they are not yet).
+    note_failures : bool
+        A module that cannot be imported or has no ``__version__`` is reported as ``"unknown (<error type>)"``
+        with ``True``, left out with ``False``. Either way version reporting never fails a run.
+    """
+    out = {"python": platform.python_version()}
+    for mod in modules:
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception as exc:  # noqa: BLE001 - version reporting must never fail a run
+            if note_failures:
+                out[mod] = f"unknown ({type(exc).__name__})"
+    return out
