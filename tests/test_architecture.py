@@ -116,13 +116,7 @@ def test_the_import_reader_sees_lazy_and_skips_type_checking(tmp_path):
 
 # Private names still used across modules, in files whose owners change them later (remove an entry once
 # its use is gone; the test fails on any use not listed here).
-_KNOWN_PRIVATE_USES = {
-    ("pbicrl.io.csv", "pbicrl.inference.data._file_kind"),
-    ("pbicrl.inference.samplers._mcmc", "pbicrl.inference.samplers._priorkern._lognormal"),
-    ("pbicrl.inference.samplers._mcmc", "pbicrl.inference.samplers._priorkern._logprior_w"),
-    ("pbicrl.inference.synthetic", "pbicrl.inference.data._fmt_bytes"), ("pbicrl.ui.inference", "pbicrl.inference.samplers.driver._progress_bar"),
-    ("pbicrl.ui.session", "pbicrl.inference.data._shipped_dir"),
-}
+_KNOWN_PRIVATE_USES: set[tuple[str, str]] = set()
 
 
 def _private(name: str) -> bool:

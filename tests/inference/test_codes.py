@@ -60,13 +60,13 @@ def test_python_side_uses_the_codes():
 
 
 def test_compiled_prior_density_branches_on_the_prior_codes():
-    from pbicrl.inference.samplers._priorkern import _logprior_w
+    from pbicrl.inference.samplers._priorkern import logprior_w
 
     prm = np.array([[-10.0, 0.0, 0.0, 2.0, 3.0, 0.25]])  # low, high, loc, scale, df, log_norm
-    assert _logprior_w(codes.PRIOR_IMPROPER, prm, 0, -1.0) == 0.0
-    assert _logprior_w(codes.PRIOR_FLAT, prm, 0, -1.0) == -0.25
-    assert _logprior_w(codes.PRIOR_NORMAL, prm, 0, -1.0) == -0.5 * 0.25 - 0.25
-    assert _logprior_w(codes.PRIOR_STUDENT_T, prm, 0, -1.0) == pytest.approx(-2.0 * np.log1p(0.25 / 3.0) - 0.25)
+    assert logprior_w(codes.PRIOR_IMPROPER, prm, 0, -1.0) == 0.0
+    assert logprior_w(codes.PRIOR_FLAT, prm, 0, -1.0) == -0.25
+    assert logprior_w(codes.PRIOR_NORMAL, prm, 0, -1.0) == -0.5 * 0.25 - 0.25
+    assert logprior_w(codes.PRIOR_STUDENT_T, prm, 0, -1.0) == pytest.approx(-2.0 * np.log1p(0.25 / 3.0) - 0.25)
 
 
 def test_compiled_constraint_columns_branch_on_the_family_codes():

@@ -200,7 +200,7 @@ def test_truncated_normal_ppf():
 
 @pytest.mark.parametrize("name", list(PRIORS) + ["improper negative", "improper any"])
 def test_python_and_compiled_densities_agree(name):
-    from pbicrl.inference.samplers._priorkern import _logprior_w
+    from pbicrl.inference.samplers._priorkern import logprior_w
 
     prior = PRIORS.get(name) or WeightPrior("improper", sign=name.split()[1])
     rp = prior.resolve(n_features=1)
@@ -209,7 +209,7 @@ def test_python_and_compiled_densities_agree(name):
     grid = np.r_[np.linspace(-80, 450, 2001), lo, hi, -1e200, 1e200, 0.0, -0.0, np.nan]
     grid = grid[np.isfinite(grid) | np.isnan(grid)]
     py = rp.logpdf(grid[:, None])[:, 0]
-    nb = np.array([_logprior_w(int(kind[0]), prm, 0, float(w)) for w in grid])
+    nb = np.array([logprior_w(int(kind[0]), prm, 0, float(w)) for w in grid])
     np.testing.assert_array_equal(np.isfinite(py), np.isfinite(nb))
     np.testing.assert_allclose(nb[np.isfinite(py)], py[np.isfinite(py)], rtol=1e-13, atol=1e-13)
 

@@ -60,7 +60,7 @@ from pbicrl._atomic import clean_stale_temporaries, temporary_prefix, umask
 __all__ = [
     "Dataset", "DatasetError", "DatasetNotFoundError", "load_dataset", "resolve_dataset_path",
     "list_shipped_datasets", "ArrayHeader", "inspect_npz", "memory_limit_bytes", "clean_stale_temporaries",
-    "temporary_prefix", "MAX_GROUPS",
+    "temporary_prefix", "MAX_GROUPS", "file_kind", "format_bytes", "shipped_dir",
 ]
 
 MAX_GROUPS = 1000
@@ -87,7 +87,8 @@ class DatasetNotFoundError(DatasetError, FileNotFoundError):
 
 
 # ---------------------------------------------------------------------------------------------- shipped data
-def _shipped_dir() -> Path:
+def shipped_dir() -> Path:
+    """The folder of the datasets shipped with pbicrl (``pbicrl/data``)."""
     from importlib import resources
 
     return Path(str(resources.files("pbicrl") / "data"))
@@ -99,7 +100,7 @@ def list_shipped_datasets() -> list[str]:
     Each name works wherever a dataset path does: ``load_dataset(name)``, ``pbicrl infer NAME``,
     ``data = "NAME"`` in a sweep file.
     """
-    d = _shipped_dir()
+    d = shipped_dir()
     if not d.is_dir():
         return []
     return sorted(p.stem for p in d.glob("*.npz") if p.is_file())
@@ -133,7 +134,7 @@ def resolve_dataset_path(name_or_path: str | os.PathLike[str]) -> Path:
         return p
     if not p.is_absolute() and len(Path(text).parts) == 1:  # a bare name may be a shipped dataset
         stem = p.stem if p.suffix == ".npz" else p.name
-        shipped = _shipped_dir() / f"{stem}.npz"
+        shipped = shipped_dir() / f"{stem}.npz"
         if shipped.is_file():
             return shipped
     if p.exists() or p.is_symlink():
@@ -144,7 +145,8 @@ def resolve_dataset_path(name_or_path: str | os.PathLike[str]) -> Path:
 
 
 # ---------------------------------------------------------------------------------------------- memory
-def _fmt_bytes(n: float) -> str:
+def format_bytes(n: float) -> str:
+    """``n`` bytes for people: ``"512 bytes"``, ``"1.5 MiB"``."""
     for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
         if abs(n) < 1024 or unit == "PiB":
             return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
@@ -214,7 +216,7 @@ def _open_regular(path: Path, what: str) -> IO[bytes]:
         raise DatasetError(f"{path}: cannot be opened ({exc.strerror or exc})") from None
     try:
         st = os.fstat(fd)
-        kind = _file_kind(st.st_mode)
+        kind = file_kind(st.st_mode)
         if kind is not None:
             raise DatasetError(f"{path}: is a {kind}, not a regular file; pbicrl reads a {what} only from a "
                                "regular file")
@@ -226,7 +228,8 @@ def _open_regular(path: Path, what: str) -> IO[bytes]:
         raise
 
 
-def _file_kind(mode: int) -> str | None:
+def file_kind(mode: int) -> str | None:
+    """``None`` for a regular file's ``st_mode``, else what it is (``"directory"``, ``"FIFO"``, ...) for messages."""
     if stat.S_ISREG(mode):
         return None
     for test, name in ((stat.S_ISDIR, "directory"), (stat.S_ISCHR, "character device"),
@@ -286,8 +289,8 @@ def _check_header(h: ArrayHeader, where: str, *, what: str, allow_objects: bool 
         raise DatasetError(f"{where}: contains Python objects (pickles), which are not read for safety; "
                            "store text as a string array (np.array(names, dtype=str))")
     if h.nbytes > h.data_bytes:
-        raise DatasetError(f"{where}: the header declares shape {h.shape} ({h.dtype}, {_fmt_bytes(h.nbytes)}) "
-                           f"but the {what} holds only {_fmt_bytes(max(h.data_bytes, 0))} of data (truncated "
+        raise DatasetError(f"{where}: the header declares shape {h.shape} ({h.dtype}, {format_bytes(h.nbytes)}) "
+                           f"but the {what} holds only {format_bytes(max(h.data_bytes, 0))} of data (truncated "
                            "or corrupt file)")
 
 
@@ -332,8 +335,8 @@ def _inspect_open(fh: IO[bytes], path: Path, what: str, fields: Sequence[str] | 
     if total > limit:
         big = max(loaded, key=lambda k: headers[k].nbytes)
         h = headers[big]
-        raise DatasetError(f"{path}: field '{big}' has shape {h.shape} ({h.dtype}, {_fmt_bytes(h.nbytes)}); the "
-                           f"arrays of this {what} need {_fmt_bytes(total)}, more than the {_fmt_bytes(limit)} "
+        raise DatasetError(f"{path}: field '{big}' has shape {h.shape} ({h.dtype}, {format_bytes(h.nbytes)}); the "
+                           f"arrays of this {what} need {format_bytes(total)}, more than the {format_bytes(limit)} "
                            "this process can allocate")
     return zf, headers
 

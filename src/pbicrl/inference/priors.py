@@ -73,7 +73,7 @@ PARAMETRIC_FEATURE_SD = 0.5
 #: Default half-width of the ``flat`` prior's box.
 FLAT_DEFAULT_BOUND = 1000.0
 
-# Kind codes of the compiled density (:func:`pbicrl.inference.samplers._priorkern._logprior_w`).
+# Kind codes of the compiled density (:func:`pbicrl.inference.samplers._priorkern.logprior_w`).
 _CODES = PRIOR_KINDS
 _ALIASES = {"uniform": "flat", "student-t": "student_t", "t": "student_t"}
 _SIGNS = ("negative", "any")
@@ -678,7 +678,7 @@ class ResolvedWeightPrior:
         return med, np.maximum(np.maximum(med - qs[0], qs[2] - med), np.finfo(float).tiny)
 
     def as_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """``(kind codes (d,), params (d, 6))`` for :func:`pbicrl.inference.samplers._priorkern._logprior_w`.
+        """``(kind codes (d,), params (d, 6))`` for :func:`pbicrl.inference.samplers._priorkern.logprior_w`.
 
         Parameter columns: ``[low, high, loc, scale, df, log_norm]``; the compiled density is the kernel at
         :math:`z = (w - \\mu_j)/s_j` minus ``log_norm`` (the normaliser is computed here, once).

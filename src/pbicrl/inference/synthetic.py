@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbicrl.inference.data import Dataset, _fmt_bytes, memory_limit_bytes
+from pbicrl.inference.data import Dataset, format_bytes, memory_limit_bytes
 
 __all__ = ["SyntheticProblem", "make_problem", "make_wall_problem", "make_region_problem", "MAX_TRAJECTORIES"]
 
@@ -50,8 +50,8 @@ def _check_size(n_total: int, mean_length: float, n_columns: int, what: str = "n
     limit = memory_limit_bytes()
     if need > limit:
         per = max(1, int(limit / max(need / n_total, 1.0)))
-        raise ValueError(f"{what}: {n_total:,} trajectories in all need about {_fmt_bytes(need)} of memory, more than "
-                         f"the {_fmt_bytes(limit)} this process can allocate; ask for at most {per:,} in all")
+        raise ValueError(f"{what}: {n_total:,} trajectories in all need about {format_bytes(need)} of memory, more than "
+                         f"the {format_bytes(limit)} this process can allocate; ask for at most {per:,} in all")
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbicrl._atomic import atomic_path, clean_stale_temporaries
-from pbicrl.inference.data import Dataset, DatasetError, _file_kind
+from pbicrl.inference.data import Dataset, DatasetError, file_kind
 
 __all__ = ["TableError", "read_csv", "read_parquet", "read_table", "columns_to_dataset", "write_csv", "check_delimiter"]
 
@@ -242,7 +242,7 @@ def _check_input(p: Path, what: str) -> None:
         raise FileNotFoundError(f"data: {p}: no such file") from None
     except OSError as exc:
         raise TableError(f"{p}: cannot be read ({exc.strerror or exc})") from None
-    kind = _file_kind(st.st_mode)
+    kind = file_kind(st.st_mode)
     if kind is not None:
         raise TableError(f"{p}: is a {kind}, not a {what} file")
 

@@ -141,8 +141,8 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
         from pbicrl.inference.samplers import driver
 
         warnings.simplefilter("ignore", PbicrlWarning)  # they are in summary.json; the page shows them
-        if hasattr(driver, "_progress_bar"):
-            driver._progress_bar = lambda total, enabled: _Reporter(total, q)  # this process only
+        if hasattr(driver, "progress_bar"):
+            driver.progress_bar = lambda total, enabled: _Reporter(total, q)  # this process only
         q.put(("progress", 0.0, "preparing"))
         full = load_dataset(labelling_path, allow_unlabelled=True)
         labelled = full.labelled()

@@ -67,10 +67,10 @@ def _same_trajectories(a: Dataset, b: Dataset) -> str | None:
 
 def _guess_env(path: Path) -> str | None:
     """The env id of a shipped dataset (``point_mass.npz`` shipped with pbicrl -> ``point_mass``)."""
-    from pbicrl.inference.data import _shipped_dir
+    from pbicrl.inference.data import shipped_dir
 
     try:
-        if path.resolve().parent == _shipped_dir().resolve() and path.stem in list_shipped_datasets():
+        if path.resolve().parent == shipped_dir().resolve() and path.stem in list_shipped_datasets():
             return path.stem
     except OSError:
         return None

@@ -28,7 +28,7 @@ from pbicrl.inference.likelihood_kernels import LikelihoodArrays, loglik, pairs_
 from pbicrl.inference.samplers import _parametric, _priorkern, bundles
 from pbicrl.inference.samplers._cache import flush_stale
 from pbicrl.inference.samplers._parametric import param_column
-from pbicrl.inference.samplers._priorkern import _logprior_w, _lognormal
+from pbicrl.inference.samplers._priorkern import logprior_w, lognormal
 from pbicrl.inference.samplers.bundles import (Adaptation, ConstraintArrays, Draws, MapTracker, Model, Moves,
                                                Position, Randoms, Schedule, Scratch)
 
@@ -224,8 +224,8 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
             elif c[j] == 0:
                 # reversible jump on: draw w_j ~ q_j (and theta_j ~ q_theta for a parametric constraint)
                 w_new = q_mu[j] + q_s[j] * z[t]
-                lpw = _logprior_w(pkind[j], prm, j, w_new)
-                lq = _lognormal(w_new, q_mu[j], q_s[j])
+                lpw = logprior_w(pkind[j], prm, j, w_new)
+                lq = lognormal(w_new, q_mu[j], q_s[j])
                 if j >= d_known:
                     m = j - d_known
                     p0 = poff[m]
@@ -234,7 +234,7 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                         theta_new[p] = theta[p]
                     for p in range(p0, p1):
                         theta_new[p] = qt_mu[p] + qt_s[p] * zt[t, p - p0]
-                        lq += _lognormal(theta_new[p], qt_mu[p], qt_s[p])
+                        lq += lognormal(theta_new[p], qt_mu[p], qt_s[p])
                     lpw += _logprior_theta(theta_new, p0, p1, tlo, thi, True)
                 if lpw > -np.inf:
                     if j >= d_known:
@@ -270,13 +270,13 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                         accepted = True
             else:
                 # reversible jump off: drop w_j (and theta_j); the reverse of the move above
-                lpw = _logprior_w(pkind[j], prm, j, w[j])
-                lq = _lognormal(w[j], q_mu[j], q_s[j])
+                lpw = logprior_w(pkind[j], prm, j, w[j])
+                lq = lognormal(w[j], q_mu[j], q_s[j])
                 if j >= d_known:
                     m = j - d_known
                     lpw += _logprior_theta(theta, poff[m], poff[m + 1], tlo, thi, True)
                     for p in range(poff[m], poff[m + 1]):
-                        lq += _lognormal(theta[p], qt_mu[p], qt_s[p])
+                        lq += lognormal(theta[p], qt_mu[p], qt_s[p])
                 lu = math.log(u_acc[t])
                 screened = False
                 if memo_valid[j]:
@@ -310,8 +310,8 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
             ad[3, j] += 1
             step = sigma[j] * z[t]
             w_new = w[j] + step
-            lp_old = _logprior_w(pkind[j], prm, j, w[j]) if use_prior else 0.0
-            lp_newj = _logprior_w(pkind[j], prm, j, w_new) if use_prior else 0.0
+            lp_old = logprior_w(pkind[j], prm, j, w[j]) if use_prior else 0.0
+            lp_newj = logprior_w(pkind[j], prm, j, w_new) if use_prior else 0.0
             if lp_newj > -np.inf:
                 if c[j] == 0:
                     # paper mode only: an inactive weight leaves the likelihood unchanged, always accepted
@@ -403,8 +403,8 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                         acc_ += Lc[r, q] * zj[t, q]
                     dw[r] = sc * acc_
                     jj = act[r]
-                    lp_old += _logprior_w(pkind[jj], prm, jj, w[jj])
-                    lp_new += _logprior_w(pkind[jj], prm, jj, w[jj] + dw[r])
+                    lp_old += logprior_w(pkind[jj], prm, jj, w[jj])
+                    lp_new += logprior_w(pkind[jj], prm, jj, w[jj] + dw[r])
                 if lp_new > -np.inf:
                     for i in range(N):
                         a_new[i] = a[i]

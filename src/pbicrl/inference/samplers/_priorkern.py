@@ -1,6 +1,6 @@
 """Compiled prior densities of the penalty weights, shared by the sampler loop (:mod:`pbicrl.inference.samplers._mcmc`).
 
-``_logprior_w(kind, prm, j, w)`` takes the prior kind code of feature ``j`` and its row ``prm[j]`` of
+``logprior_w(kind, prm, j, w)`` takes the prior kind code of feature ``j`` and its row ``prm[j]`` of
 parameters ``[low, high, loc, scale, df, log_norm]``, as produced by
 :meth:`pbicrl.inference.priors.ResolvedWeightPrior.as_arrays`. The log normaliser ``log_norm`` (which holds the
 truncation mass :math:`F(b) - F(a)`) is computed once in Python, where the tail-accurate CDFs live; the
@@ -18,7 +18,7 @@ from numba import njit
 
 from pbicrl.inference.codes import PRIOR_FLAT, PRIOR_IMPROPER, PRIOR_NORMAL, PRIOR_STUDENT_T
 
-__all__ = ["KIND_FLAT", "KIND_NORMAL", "KIND_IMPROPER", "KIND_STUDENT_T", "N_PRIOR_PARAMS"]
+__all__ = ["lognormal", "logprior_w", "KIND_FLAT", "KIND_NORMAL", "KIND_IMPROPER", "KIND_STUDENT_T", "N_PRIOR_PARAMS"]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -31,7 +31,7 @@ N_PRIOR_PARAMS = 6
 
 
 @njit(cache=True)
-def _logprior_w(kind: int, prm: np.ndarray, j: int, w: float) -> float:
+def logprior_w(kind: int, prm: np.ndarray, j: int, w: float) -> float:
     """Normalised log prior density of weight ``w`` of feature ``j`` (``-inf`` outside its support)."""
     lo = prm[j, 0]
     hi = prm[j, 1]
@@ -55,6 +55,6 @@ def _logprior_w(kind: int, prm: np.ndarray, j: int, w: float) -> float:
 
 
 @njit(cache=True)
-def _lognormal(w: float, mu: float, s: float) -> float:
+def lognormal(w: float, mu: float, s: float) -> float:
     z = (w - mu) / s
     return -0.5 * z * z - math.log(s) - _LOG_SQRT_2PI

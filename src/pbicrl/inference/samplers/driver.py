@@ -40,7 +40,7 @@ from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.results import Posterior
 from pbicrl.inference.samplers.kernels import ADAPT_EVERY, ChainState, Kernel, SamplerSettings, build_kernel
 
-__all__ = ["sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES"]
+__all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES"]
 
 # Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
 _CHUNK = 20_000
@@ -422,7 +422,7 @@ def sample(
         if n_jobs > 1:
             _compile_here(kernel)  # once here rather than once per worker
     total = int(kernel.settings.n_iterations) * int(n_chains)
-    bar = _progress_bar(total, progress)
+    bar = progress_bar(total, progress)
     t0 = time.perf_counter()
     try:
         if n_jobs == 1:
@@ -487,7 +487,7 @@ class _LocalCounter:
             self.bar.update(self.value - self._before)
 
 
-def _progress_bar(total: int, enabled: bool) -> Any:
+def progress_bar(total: int, enabled: bool) -> Any:
     if not enabled:
         return None
     from tqdm.auto import tqdm
