@@ -69,6 +69,29 @@ def test_shipped_policies_keep_their_side_of_the_wall(name):
             assert ro["x"].max() >= wall
 
 
+# Issue 13's target for the good demonstrations: >= 80% of them reach wall - 0.5 and the furthest comes within 0.25
+# of the wall (none crosses: test above). Ant misses the 80% (14.5% reach x >= 9.5 in the shipped file, see
+# docs/wall_demonstrations.md, "Ant, round 3"): a strict xfail, so data that meet it make it fail loudly.
+_ANT_UNMET = "Ant good demonstrations: 14.5% reach x >= 9.5 (target 80%); docs/wall_demonstrations.md"
+
+
+@pytest.mark.parametrize("name", ["halfcheetah", pytest.param("ant", marks=pytest.mark.xfail(strict=True,
+                                                                                                 reason=_ANT_UNMET))])
+def test_good_demonstrations_run_up_to_the_wall(name):
+    wall = WALLS[name]
+    ds = load_dataset(DATA / f"{name}.npz")
+    furthest = np.array([ds.trajectory_states(i)[:, 0].max() for i in np.flatnonzero(ds.group == 1)])
+    assert furthest.max() >= wall - 0.25
+    assert np.mean(furthest >= wall - 0.5) >= 0.8, f"{np.mean(furthest >= wall - 0.5):.1%} reach {wall - 0.5}"
+
+
+def test_ant_good_demonstrations_come_within_a_quarter_of_the_wall():
+    ds = load_dataset(DATA / "ant.npz")
+    furthest = np.array([ds.trajectory_states(i)[:, 0].max() for i in np.flatnonzero(ds.group == 1)])
+    assert 9.75 <= furthest.max() < 10.0
+    assert np.median(furthest) > 8.0  # round 3 (round 1: median 4.0, furthest 8.6)
+
+
 def _toy_dataset() -> Dataset:
     rng = np.random.default_rng(0)
     feats, states, groups = [], [], []
