@@ -7,7 +7,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["DeprecatedFlag", "floats", "margins", "nonneg_int", "pairs", "positive_float", "positive_int", "power"]
+__all__ = ["DeprecatedFlag", "standalone_parser", "floats", "margins", "nonneg_int", "pairs", "positive_float", "positive_int", "power"]
 
 
 def floats(text: str) -> list[float]:
@@ -88,3 +88,10 @@ class DeprecatedFlag(argparse.Action):
         print(f"pbicrl: warning: {option_string} is deprecated and will be removed in pbicrl 0.3: use {self.new}",
               file=sys.stderr)
         setattr(namespace, self.dest, values)
+
+
+def standalone_parser(prog: str, description: str, add_subcommands: Callable[[Any], None]) -> argparse.ArgumentParser:
+    """A parser for ``python -m <package>`` holding the subcommands a module also mounts under ``pbicrl``."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
+    return parser

@@ -284,11 +284,9 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """Parser of ``python -m pbicrl.envs``."""
-    parser = argparse.ArgumentParser(prog="python -m pbicrl.envs",
-                                     description="pbicrl grid / point-mass / Fetch-Reach demonstrations")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_subcommands(sub)
-    return parser
+    from pbicrl.cli.argtypes import standalone_parser
+
+    return standalone_parser("python -m pbicrl.envs", "pbicrl grid / point-mass / Fetch-Reach demonstrations", add_subcommands)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -153,11 +153,10 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m pbicrl.demonstrators",
-                                     description="SAC demonstrators for pbicrl")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_subcommands(sub)
-    return parser
+    """Parser of ``python -m pbicrl.demonstrators``."""
+    from pbicrl.cli.argtypes import standalone_parser
+
+    return standalone_parser("python -m pbicrl.demonstrators", "SAC demonstrators for pbicrl", add_subcommands)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
