@@ -284,6 +284,31 @@ def test_large_groups_binned_match_the_per_item_terms(scale):
     assert lik.from_scaled_returns(a) == pytest.approx(expect, rel=1e-12)
 
 
+@pytest.mark.parametrize("scale", [0.01, 1.0, 10.0])
+def test_large_groups_near_certain_use_the_binned_complement(scale):
+    """A large group far above the lower ones (P_k close to 1: the direct form declines) gets the complement form on
+    binned moments: the same log P_k as the per-item path, including tiny ones (relative precision kept)."""
+    rng = np.random.default_rng(int(scale * 100) + 7)
+    n = 12_000
+    seen = 0
+    for shift in (4.0, 8.0, 14.0, 25.0):
+        a = rng.normal(size=n) * scale
+        cen, mom, nb = _kernels._gb_moments(a, np.arange(n))
+        assert nb > 0
+        log_lam = a.min() - shift
+        assert np.isnan(_kernels._gb_direct(n, -log_lam, cen, mom, nb))  # the complement's case
+        expect = _kernels.group_term(a - log_lam, np.empty((4, n)))
+        got = _kernels._gb_comp(-log_lam, cen, mom, nb)
+        assert got == pytest.approx(expect, rel=1e-12, abs=0.0)
+        seen += expect < -1e-300
+    assert seen >= 2  # not only terms that round to 0
+    # through the likelihood: one binned group far above another
+    a = np.concatenate([rng.normal(size=n) * scale + 12.0, rng.normal(size=n) * scale])
+    lik = _grouped(a, np.repeat([1, 2], n), [0.0])
+    expect = _kernels.group_term(a[:n] - np.logaddexp.reduce(a[n:]), np.empty((4, n)))
+    assert lik.from_scaled_returns(a) == pytest.approx(expect, rel=1e-12, abs=0.0)
+
+
 def test_large_groups_keep_the_per_item_path_when_binning_does_not_pay():
     rng = np.random.default_rng(1)
     n = 3000
