@@ -200,6 +200,31 @@ def test_softplus_shortcuts_give_the_same_bits():
         assert softplus(v) == general, v
 
 
+@pytest.mark.parametrize("scale", [1e-3, 0.3, 3.0, 40.0, 2000.0])
+def test_explicit_pairs_match_the_exactly_rounded_sum(scale):
+    """pairs_loglik (product of 1 + e^{-|z|}, series for small terms) against math.fsum of per-pair logaddexp,
+    relative to the sum itself: also when nearly every pair is decided and the sum is tiny, and beyond _CHUNK."""
+    from pbicrl.inference.likelihood_kernels import pairs_loglik
+
+    rng = np.random.default_rng(int(scale * 1000) + 1)
+    for P in (1, 7, 511, 512, 513, 3000):
+        N = 200
+        a = rng.normal(size=N) * scale
+        pi, pj = rng.integers(0, N, P), rng.integers(0, N, P)
+        pm = rng.uniform(-2, 2, P)
+        expect = -math.fsum(np.logaddexp(0.0, a[pj] + pm - a[pi]).tolist())
+        assert pairs_loglik(a, pi, pj, pm) == pytest.approx(expect, rel=2e-14, abs=0.0)
+        # every pair decided by 6 .. 40 nats: a sum of terms 1e-18 .. 2.5e-3
+        pm2 = -(np.abs(a[pj] - a[pi]) + rng.uniform(6.0, 40.0, P)) - (a[pj] - a[pi])
+        expect2 = -math.fsum(np.logaddexp(0.0, a[pj] + pm2 - a[pi]).tolist())
+        assert pairs_loglik(a, pi, pj, pm2) == pytest.approx(expect2, rel=1e-13, abs=0.0)
+    one = np.array([0]), np.array([1])
+    assert pairs_loglik(np.array([np.inf, 0.0]), *one, np.zeros(1)) == 0.0
+    assert pairs_loglik(np.array([-np.inf, 0.0]), *one, np.zeros(1)) == -np.inf
+    assert np.isnan(pairs_loglik(np.array([np.nan, 0.0]), *one, np.zeros(1)))
+    assert np.isnan(pairs_loglik(np.array([np.inf, np.inf]), *one, np.zeros(1)))
+
+
 @pytest.mark.parametrize("scale", [0.1, 3.0, 40.0, 2000.0])
 def test_pairs_bound_is_an_upper_bound_and_tight(scale):
     from pbicrl.inference.likelihood_kernels import pairs_loglik, pairs_loglik_bound
