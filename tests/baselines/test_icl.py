@@ -247,6 +247,16 @@ def test_reproduce_icl_smoke(tmp_path, monkeypatch):
         assert row["icl"]["n_expert"] == [100]
         assert 0.0 <= row["icl"]["cmse_grid"][0] <= 1.0
         assert row["pbicrl"]["runtime_s"][0] > 0 and row["icl"]["runtime_s"][0] > 0
+    # one environment only: the other is not run (its finished tasks above are simply not read)
+    monkeypatch.setenv("PBICRL_ICL_ENVS", "halfcheetah")
+    reproduce("icl", out=tmp_path, iterations=2000, seeds=1, executor="serial", progress=False,
+              data={"halfcheetah": str(data), "ant": str(tmp_path / "missing.npz")})
+    assert list(json.loads((tmp_path / "icl" / "results.json").read_text())["envs"]) == ["halfcheetah"]
+    for bad in ("cheetah", "", "ant,ant"):
+        monkeypatch.setenv("PBICRL_ICL_ENVS", bad)
+        with pytest.raises(ValueError, match="PBICRL_ICL_ENVS"):
+            reproduce("icl", out=tmp_path, seeds=1, executor="serial", progress=False, data={"halfcheetah": str(data)})
+    monkeypatch.delenv("PBICRL_ICL_ENVS")
     monkeypatch.setenv("PBICRL_ICL_BUDGET", "enormous")
     with pytest.raises(ValueError, match="PBICRL_ICL_BUDGET"):
         reproduce("icl", out=tmp_path, seeds=1, executor="serial", progress=False, data={"halfcheetah": str(data)})

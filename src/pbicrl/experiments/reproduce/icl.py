@@ -23,7 +23,8 @@ def exp_icl(ctx: Context) -> Path:
     Not part of ``all`` (hours of RL per seed). ICL gets the good demonstrations (group 1, up to 200) of the
     dataset PBICRL draws its 100 + 100 from; its budget is the :func:`pbicrl.baselines.icl.icl_preset` named by
     the environment variable ``PBICRL_ICL_BUDGET`` (``smoke``, ``default`` - about 45 min per HalfCheetah seed
-    on 2 cores - or ``paper``). Each ICL seed is a resumable task (checkpoints under ``<out>/icl/checkpoints``).
+    on 2 cores - or ``paper``). ``PBICRL_ICL_ENVS`` (comma-separated, default ``halfcheetah,ant``) chooses the
+    environments. Each ICL seed is a resumable task (checkpoints under ``<out>/icl/checkpoints``).
     """
     import hashlib
     import os
@@ -37,6 +38,10 @@ def exp_icl(ctx: Context) -> Path:
     budget = os.environ.get("PBICRL_ICL_BUDGET", "default")
     if budget not in ("smoke", "default", "paper"):
         raise ValueError(f"PBICRL_ICL_BUDGET: expected smoke, default or paper, got {budget!r}")
+    envs = [e.strip() for e in os.environ.get("PBICRL_ICL_ENVS", "halfcheetah,ant").split(",") if e.strip()]
+    if not envs or any(e not in ("halfcheetah", "ant") for e in envs) or len(set(envs)) != len(envs):
+        raise ValueError("PBICRL_ICL_ENVS: expected a comma-separated subset of halfcheetah, ant, got "
+                         f"{os.environ.get('PBICRL_ICL_ENVS')!r}")
     # needs torch and MuJoCo: pip install "pbicrl[rl,envs]"
     from pbicrl.baselines.icl import icl_preset
 
@@ -52,7 +57,7 @@ def exp_icl(ctx: Context) -> Path:
               f"`{getattr(ctx.executor, 'name', ctx.executor)}`, workers {ctx.workers or 'default'}; concurrent seeds "
               "share cores), the paper's on theirs."), ""]
     results: dict[str, Any] = {"budget": budget, "seeds": ctx.seeds, "iterations": ctx.iterations, "envs": {}}
-    for name in ("halfcheetah", "ant"):
+    for name in envs:
         try:
             dataset = ctx.dataset(name)
         except FileNotFoundError as exc:
