@@ -7,7 +7,8 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["DeprecatedFlag", "standalone_parser", "floats", "margins", "nonneg_int", "pairs", "positive_float", "positive_int", "power"]
+__all__ = ["DeprecatedFlag", "standalone_parser", "floats", "margins", "nonneg_int", "pairs", "port", "positive_float", "positive_int", "power",
+           "probability"]
 
 
 def floats(text: str) -> list[float]:
@@ -69,6 +70,16 @@ def nonneg_int(text: str) -> int:
 def positive_float(text: str) -> float:
     """A finite number > 0 (NaN is not)."""
     return _number(text, float, lambda x: 0 < x < float("inf"), "a positive number")
+
+
+def probability(text: str) -> float:
+    """A number in [0, 1]."""
+    return _number(text, float, lambda x: 0.0 <= x <= 1.0, "a number in [0, 1]")
+
+
+def port(text: str) -> int:
+    """A TCP port, 0 (any free port) to 65535."""
+    return _number(text, int, lambda v: 0 <= v <= 65535, "a port from 0 to 65535")
 
 
 class DeprecatedFlag(argparse.Action):

@@ -14,19 +14,9 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from pbicrl.cli.argtypes import positive_int as _positive_int
+from pbicrl.cli.argtypes import port, positive_int as _positive_int
 
 __all__ = ["add_subcommands", "check_port"]
-
-
-def _port(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
-    if not 0 <= v <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a port from 0 to 65535, got {v}")
-    return v
 
 
 def add_subcommands(sub: Any) -> None:
@@ -37,7 +27,7 @@ def add_subcommands(sub: Any) -> None:
                                    "inference; every change is saved to --out, which also resumes a session.")
     p.add_argument("data", type=Path, help="demonstrations (.npz with states; group 0 = unlabelled) or a shipped name")
     p.add_argument("--out", type=Path, help="labelled dataset (.npz), written on every change; resumed if it exists")
-    p.add_argument("--port", type=_port, default=8000, help="port (default 8000; 0 = any free port)")
+    p.add_argument("--port", type=port, default=8000, help="port (default 8000; 0 = any free port)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
     p.add_argument("--no-browser", action="store_true", help="do not open a browser")
     p.add_argument("--env", dest="env_id", help="environment for the pictures (default: the dataset's env_id)")

@@ -35,7 +35,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pbicrl.cli.argtypes import positive_int as _positive_int
+from pbicrl.cli.argtypes import positive_int as _positive_int, probability
 from pbicrl._atomic import copy_file
 
 __all__ = ["DATA_DIR", "add_subcommands", "build_parser", "main", "shipped_policy"]
@@ -44,16 +44,6 @@ DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 _ROLE = {"true": "good", "nominal": "violating"}
 # start distributions a --paper-protocol run may use (PointMassEnv / FetchReachConstrainedEnv ``start``)
 _STARTS = {"point_mass": ("random", "left", "bottom"), "fetch_reach": ("wide", "equidistant")}
-
-
-def _probability(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= x <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
-    return x
 
 
 def shipped_policy(env: str, role: str) -> Path:
@@ -237,7 +227,7 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
                         "distribution, made by the good policy with probability --p-good else by the violating "
                         "one, grouped by the worst region it entered; all rollouts kept except those that miss "
                         "the goal; runs until every group holds at least -n")
-    p.add_argument("--p-good", type=_probability, default=None,
+    p.add_argument("--p-good", type=probability, default=None,
                    help="--paper-protocol: probability that a rollout uses the good policy (default: the shipped "
                         "data's, PAPER_PROTOCOL)")
     p.add_argument("--start", default=None,
