@@ -32,7 +32,7 @@ def subsample(n: int, seed: int) -> dict[str, Any]:
     return {"demos_per_group": n, "demos_seed": seed, "pairs_seed": seed}
 
 
-@dataclass
+@dataclass(frozen=True)
 class Context:
     """What every experiment of one ``reproduce`` call shares.
 
