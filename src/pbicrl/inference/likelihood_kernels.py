@@ -612,6 +612,12 @@ def _pl_sums(s: float, x: np.ndarray) -> tuple[float, float, float]:
 def _pl_comp_derivs(s: float, x: np.ndarray) -> tuple[float, float, float]:
     """``(c, c', c'')`` of the complement form at ``s`` (``c = -inf`` once :math:`h` rounds to 0)."""
     h, h1, h2 = _pl_sums(s, x)
+    return _comp_from_h(s, h, h1, h2)
+
+
+@njit(cache=True, error_model="numpy")
+def _comp_from_h(s: float, h: float, h1: float, h2: float) -> tuple[float, float, float]:
+    """``(c, c', c'')`` of the complement form at ``s`` from :math:`h, h', h''` there."""
     es = math.exp(s)
     if not h < 0.0:
         return -np.inf, -np.inf, -1.0
@@ -621,6 +627,27 @@ def _pl_comp_derivs(s: float, x: np.ndarray) -> tuple[float, float, float]:
     # e^{w} / E^2 = 1 / (E (1 - e^{-w})): no overflow when w is large
     d2 = -es - h2 / E - h1 * h1 / (E * -math.expm1(-w))
     return s - es + math.log(-math.expm1(h)), d1, d2
+
+
+@njit(cache=True, error_model="numpy")
+def _newton_step(s: float, d1: float, d2: float, lo: float, hi: float) -> tuple[float, float, float, bool]:
+    """One safeguarded Newton step for the mode: ``(next s, lo, hi, converged)``.
+
+    The bracket keeps the side where the derivative ``d1`` is positive below ``s``; a step that leaves it (or a
+    non-concave point) bisects instead. Converged: a Newton step below 1e-3 sigma (bisection steps never count:
+    flat tails fool the scale), or a bracket at rounding level.
+    """
+    if d1 > 0.0:
+        lo = s
+    else:
+        hi = s
+    newton = d2 < 0.0 and d1 == d1
+    sn = s - d1 / d2 if newton else 0.5 * (lo + hi)
+    if not (lo < sn < hi):
+        newton = False
+        sn = 0.5 * (lo + hi)
+    done = (newton and abs(sn - s) * math.sqrt(-d2) < 1e-3) or hi - lo <= 1e-12 * (1.0 + abs(s))
+    return sn, lo, hi, done
 
 
 @njit(cache=True, error_model="numpy")
@@ -654,17 +681,8 @@ def _pl_mode(comp: bool, x: np.ndarray) -> tuple[float, float, float]:
             es = math.exp(s)
             d1 = 1.0 - es + h1
             d2 = -es + h2
-        if d1 > 0.0:
-            lo = s
-        else:
-            hi = s
-        newton = d2 < 0.0 and d1 == d1
-        sn = s - d1 / d2 if newton else 0.5 * (lo + hi)
-        if not (lo < sn < hi):
-            newton = False
-            sn = 0.5 * (lo + hi)
-        # converged: a Newton step below 1e-3 sigma (bisection steps never count: flat tails fool the scale)
-        if (newton and abs(sn - s) * math.sqrt(-d2) < 1e-3) or hi - lo <= 1e-12 * (1.0 + abs(s)):
+        sn, lo, hi, done = _newton_step(s, d1, d2, lo, hi)
+        if done:
             break
         s = sn
     if not comp:
@@ -1038,16 +1056,8 @@ def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) 
         es = math.exp(s)
         d1 = 1.0 - es + h1
         d2 = -es + h2
-        if d1 > 0.0:
-            lo = s
-        else:
-            hi = s
-        newton = d2 < 0.0 and d1 == d1
-        sn = s - d1 / d2 if newton else 0.5 * (lo + hi)
-        if not (lo < sn < hi):
-            newton = False
-            sn = 0.5 * (lo + hi)
-        if (newton and abs(sn - s) * math.sqrt(-d2) < 1e-3) or hi - lo <= 1e-12 * (1.0 + abs(s)):
+        sn, lo, hi, done = _newton_step(s, d1, d2, lo, hi)
+        if done:
             break
         s = sn
     s0 = s
@@ -1056,6 +1066,14 @@ def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) 
     if not (f0 + math.log(sig) + _LOG_SQRT_2PI < _G_SWITCH):
         return np.nan
     beta, gamma = _G_MAP_DIRECT
+    lp = f0 + math.log(sig * _gb_trapezoid(False, s0, sig, f0, beta, gamma, shift, cen, mom, nb, T, f))
+    return lp if lp <= math.log(0.9) else np.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_trapezoid(comp: bool, s0: float, sig: float, f0: float, beta: float, gamma: float, shift: float,
+                  cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray, f: np.ndarray) -> float:
+    """The mapped trapezoid rule of :func:`_pl_integral` on binned moments: the integral over ``sig e^{f0}``."""
     H = min(_G_STEP, _G_STEP_MAX / sig)
     acc = 1.0
     even = 1.0
@@ -1065,7 +1083,7 @@ def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) 
         direction = 1.0 if side == 0 else -1.0
         k = 1
         while k <= _G_MAX_NODES:
-            e = math.exp(_gb_node(direction * k * H, s0, sig, f0, beta, gamma, shift, cen, mom, nb, T, f))
+            e = math.exp(_gb_node(direction * k * H, s0, sig, f0, beta, gamma, shift, cen, mom, nb, T, f, comp))
             acc += e
             if k % 2 == 0:
                 even += e
@@ -1084,15 +1102,14 @@ def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) 
             h_ *= 0.5
             for i in range(n_new):
                 acc += math.exp(_gb_node(-kl * H + (2 * i + 1) * h_, s0, sig, f0, beta, gamma, shift, cen, mom, nb,
-                                         T, f))
+                                         T, f, comp))
             cur = h_ * acc
             if abs(cur - prev) <= _G_ACCEPT * cur:
                 prev = cur
                 break
             prev = cur
             n_new *= 2
-    lp = f0 + math.log(sig * prev)
-    return lp if lp <= math.log(0.9) else np.nan
+    return prev
 
 
 @njit(cache=True, error_model="numpy")
@@ -1143,25 +1160,9 @@ def _gb_comp(shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
     d2 = -1.0
     for _ in range(200):
         h, h1, h2 = _gb_h(s, shift, cen, mom, nb, T, f)
-        es = math.exp(s)
-        if not h < 0.0:
-            c0, d1, d2 = -np.inf, -np.inf, -1.0
-        else:
-            w = -h
-            E = math.expm1(w)
-            d1 = 1.0 - es - h1 / E
-            d2 = -es - h2 / E - h1 * h1 / (E * -math.expm1(-w))
-            c0 = s - es + math.log(-math.expm1(h))
-        if d1 > 0.0:
-            lo = s
-        else:
-            hi = s
-        newton = d2 < 0.0 and d1 == d1
-        sn = s - d1 / d2 if newton else 0.5 * (lo + hi)
-        if not (lo < sn < hi):
-            newton = False
-            sn = 0.5 * (lo + hi)
-        if (newton and abs(sn - s) * math.sqrt(-d2) < 1e-3) or hi - lo <= 1e-12 * (1.0 + abs(s)):
+        c0, d1, d2 = _comp_from_h(s, h, h1, h2)
+        sn, lo, hi, done = _newton_step(s, d1, d2, lo, hi)
+        if done:
             break
         s = sn
     if c0 == -np.inf:
@@ -1169,41 +1170,7 @@ def _gb_comp(shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
     s0 = s
     sig = 1.0 / math.sqrt(-d2) if d2 < 0.0 else 1.0
     beta, gamma = _G_MAP_COMP
-    H = min(_G_STEP, _G_STEP_MAX / sig)
-    acc = 1.0
-    even = 1.0
-    kr = 0
-    kl = 0
-    for side in range(2):
-        direction = 1.0 if side == 0 else -1.0
-        k = 1
-        while k <= _G_MAX_NODES:
-            e = math.exp(_gb_node(direction * k * H, s0, sig, c0, beta, gamma, shift, cen, mom, nb, T, f, True))
-            acc += e
-            if k % 2 == 0:
-                even += e
-            if e < _G_EDROP:
-                break
-            k += 1
-        if side == 0:
-            kr = k
-        else:
-            kl = k
-    prev = H * acc
-    if abs(prev - 2.0 * H * even) > _G_ACCEPT * prev:
-        h_ = H
-        n_new = kl + kr
-        for _ in range(_G_MAX_LEVELS):
-            h_ *= 0.5
-            for i in range(n_new):
-                acc += math.exp(_gb_node(-kl * H + (2 * i + 1) * h_, s0, sig, c0, beta, gamma, shift, cen, mom, nb,
-                                         T, f, True))
-            cur = h_ * acc
-            if abs(cur - prev) <= _G_ACCEPT * cur:
-                prev = cur
-                break
-            prev = cur
-            n_new *= 2
+    prev = _gb_trapezoid(True, s0, sig, c0, beta, gamma, shift, cen, mom, nb, T, f)
     lq = c0 + math.log(sig * prev)
     return math.log1p(-math.exp(lq)) if lq <= math.log(0.5) else np.nan
 
