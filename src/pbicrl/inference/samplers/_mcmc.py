@@ -149,6 +149,9 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
     screen = lkind == LIK_PAIRWISE and bm.size == 0 and pi_.size >= 16
     joint = p_joint > 0.0 and (mode == MODE_PBICRL or mode == MODE_BPL)
     act = np.empty(d, np.int64)
+    # latent flips: the screening bound of flipping j in the current state (NaN: not computed); a flip proposed
+    # again before the state changes reuses it (same value, same decision)
+    bmemo = np.full(d, np.nan)
     dw = np.empty(d)
     Lc = np.empty((d, d))
     move = MOVE_NONE
@@ -200,13 +203,20 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                 if memo_valid[j]:
                     ll_new = memo_ll[j]
                 else:
-                    for i in range(N):
-                        a_new[i] = a[i] + delta * FbT[j, i]
+                    fresh = False
                     if screen:
-                        screened = _bound(power, a_new, pi_, pj, pm) - ll < lu
+                        if bmemo[j] != bmemo[j]:  # no bound for flipping j in this state yet
+                            for i in range(N):
+                                a_new[i] = a[i] + delta * FbT[j, i]
+                            fresh = True
+                            bmemo[j] = _bound(power, a_new, pi_, pj, pm)
+                        screened = bmemo[j] - ll < lu
                     if screened:
                         ll_new = -np.inf
                     else:
+                        if not fresh:
+                            for i in range(N):
+                                a_new[i] = a[i] + delta * FbT[j, i]
                         ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ,
                                                 sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff)
                         counts[C_EVALS] += 1
@@ -440,9 +450,11 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
             elif latent and move != MOVE_FLIP and c[j] == 0:
                 # a latent weight or location moved: the returns did not change, so only flipping j changes
                 memo_valid[j] = False
+                bmemo[j] = np.nan
             elif latent:
                 for k in range(d):
                     memo_valid[k] = False
+                    bmemo[k] = np.nan
             else:
                 for k in range(d):
                     if k != j:
