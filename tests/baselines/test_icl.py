@@ -247,6 +247,8 @@ def test_reproduce_icl_smoke(tmp_path, monkeypatch):
         assert row["icl"]["n_expert"] == [100]
         assert 0.0 <= row["icl"]["cmse_grid"][0] <= 1.0
         assert row["pbicrl"]["runtime_s"][0] > 0 and row["icl"]["runtime_s"][0] > 0
+        assert row["default"]["runtime_s"][0] > 0 and len(row["default"]["theta"]) == 1  # pbicrl's default model
+    assert "pbicrl default, MAP" in text
     # one environment only: the other is not run (its finished tasks above are simply not read)
     monkeypatch.setenv("PBICRL_ICL_ENVS", "halfcheetah")
     reproduce("icl", out=tmp_path, iterations=2000, seeds=1, executor="serial", progress=False,

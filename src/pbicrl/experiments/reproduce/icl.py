@@ -69,10 +69,20 @@ def exp_icl(ctx: Context) -> Path:
         grid = np.linspace(0.0, 2 * wall, 401)
         truth = halfspace_indicator(wall)(grid)
         configs, names = wall_configs(ctx, name, dataset, 100, ctx.seeds)
-        pb = run_infer_tasks(ctx, configs, names)
+        dconfigs, dnames = wall_configs(ctx, name, dataset, 100, ctx.seeds, model="default")
+        res = run_infer_tasks(ctx, configs + dconfigs, names + dnames)
+        pb, df = res[:len(configs)], res[len(configs):]
+
+        def located(rows: list[dict]) -> dict[str, Any]:
+            """MAP wall locations of PBICRL runs and their CMSEs (location over the runs that found a wall)."""
+            theta = [r["map_parameters"][0] for r in rows]
+            loc = [cmse_location(t, wall) for t in theta if t is not None]
+            return {"theta": theta, "cmse_location": mean_std(loc) if loc else None,
+                    "cmse_grid": mean_std([cmse_grid(truth, halfspace_indicator(t)(grid) if t is not None
+                                                     else np.zeros_like(grid)) for t in theta]),
+                    "runtime_s": mean_std([r["runtime_s"] for r in rows])}
+
         pb_theta = [r["map_parameters"][0] for r in pb]
-        pb_loc = [cmse_location(t, wall) for t in pb_theta if t is not None]
-        pb_grid = [cmse_grid(truth, halfspace_indicator(t)(grid) if t is not None else np.zeros_like(grid)) for t in pb_theta]
         cfg = icl_preset(budget, name)
         sha = file_sha256(Path(dataset))[:12]
         # the preset's values are hashed too: retuning a preset must not reuse results (or checkpoints) of the old one
@@ -90,8 +100,7 @@ def exp_icl(ctx: Context) -> Path:
             icl.append(r.result)
         icl_loc = [r["cmse_location"] for r in icl if r["cmse_location"] is not None]
         no_loc = sum(r["location"] is None for r in icl)
-        row = {"pbicrl": {"theta": pb_theta, "cmse_location": mean_std(pb_loc) if pb_loc else None,
-                          "cmse_grid": mean_std(pb_grid), "runtime_s": mean_std([r["runtime_s"] for r in pb])},
+        row = {"pbicrl": located(pb), "default": located(df),
                "icl": {"location": [r["location"] for r in icl], "cmse_location": mean_std(icl_loc) if icl_loc else None,
                        "seeds_without_location": no_loc, "cmse_grid": mean_std([r["cmse_grid"] for r in icl]),
                        "runtime_s": mean_std([r["runtime_s"] for r in icl]), "n_expert": [r["n_expert"] for r in icl],
@@ -109,14 +118,20 @@ def exp_icl(ctx: Context) -> Path:
         full = load_dataset(dataset)
         reach = [float(full.trajectory_states(i)[:, 0].max()) for i in np.flatnonzero(full.group == 1)]
         row["good_demos_max_x"] = {"mean": float(np.mean(reach)), "max": float(np.max(reach))}
+        pd_, dd = row["pbicrl"], row["default"]
         lines += [f"### {name} (wall x >= {wall:g})", "",
-                  "| | PBICRL (ours) | ICL (ours) | paper PBICRL | paper ICL |", "|---|---|---|---|---|",
-                  (f"| CMSE (location) | {f(row['pbicrl']['cmse_location'])} | {f(row['icl']['cmse_location'])} | "
-                   f"{fmt_mean_std(*paper['cmse'])} | {fmt_mean_std(*paper['icl_cmse'])} |"),
-                  f"| CMSE (grid) | {f(row['pbicrl']['cmse_grid'])} | {f(row['icl']['cmse_grid'])} | - | - |",
-                  (f"| runtime per seed (s) | {f(row['pbicrl']['runtime_s'])} | {f(row['icl']['runtime_s'])} | "
-                   f"{fmt_mean_std(*paper['runtime_s'])} | {fmt_mean_std(*paper['icl_runtime_s'])} |"), "",
-                  (f"PBICRL MAP thetas: {np.round([t for t in pb_theta if t is not None], 3).tolist()}. ICL locations: "
+                  "| | PBICRL, paper Alg. 2 (ours) | pbicrl default, MAP | ICL (ours) | paper PBICRL | paper ICL |",
+                  "|---|---|---|---|---|---|",
+                  (f"| CMSE (location) | {f(pd_['cmse_location'])} | {f(dd['cmse_location'])} | "
+                   f"{f(row['icl']['cmse_location'])} | {fmt_mean_std(*paper['cmse'])} | "
+                   f"{fmt_mean_std(*paper['icl_cmse'])} |"),
+                  f"| CMSE (grid) | {f(pd_['cmse_grid'])} | {f(dd['cmse_grid'])} | {f(row['icl']['cmse_grid'])} | - | - |",
+                  (f"| runtime per seed (s) | {f(pd_['runtime_s'])} | {f(dd['runtime_s'])} | "
+                   f"{f(row['icl']['runtime_s'])} | {fmt_mean_std(*paper['runtime_s'])} | "
+                   f"{fmt_mean_std(*paper['icl_runtime_s'])} |"), "",
+                  (f"PBICRL MAP thetas: {np.round([t for t in pb_theta if t is not None], 3).tolist()}; pbicrl default "
+                   f"(grouped likelihood, half-t prior, reversible jump; `docs/reproduction` 'default') MAP thetas: "
+                   f"{np.round([t for t in dd['theta'] if t is not None], 3).tolist()}. ICL locations: "
                    f"{[None if v is None else round(v, 3) for v in row['icl']['location']]}"
                    + (f" ({no_loc} seed(s) with c < 0.5 everywhere up to x = {5 * wall:g}: no location, left out of "
                       "its CMSE)" if no_loc else "") + ". "
