@@ -632,7 +632,7 @@ class Posterior(DrawsView):
         d = self.n_features
         c = np.asarray(self.indicators).reshape(-1, d).astype(bool)
         w = np.asarray(self.penalty_weights, dtype=np.float64).reshape(-1, d)
-        chosen = [j for j in range(d) if self.p_constraint[j] > SELECTION_THRESHOLD]
+        chosen = np.flatnonzero(self.p_constraint > SELECTION_THRESHOLD).tolist()
         best: tuple[float, str, str] | None = None
         for a_, j in enumerate(chosen):
             for k in chosen[a_ + 1:]:

@@ -93,7 +93,7 @@ def _loop_arg_names() -> list[str]:
     import inspect
 
     names = list(inspect.signature(_mcmc.run_chunk).parameters)
-    return names[:_N_PREFIX] + names[_N_PREFIX + 19:]  # 19: the LikelihoodArrays fields (lkind ... moff)
+    return names[:_N_PREFIX] + names[_N_PREFIX + len(_kernels.LikelihoodArrays._fields):]
 
 
 # ------------------------------------------------------------------------------------------------ data

@@ -82,7 +82,6 @@ def exp_icl(ctx: Context) -> Path:
                                                      else np.zeros_like(grid)) for t in theta]),
                     "runtime_s": mean_std([r["runtime_s"] for r in rows])}
 
-        pb_theta = [r["map_parameters"][0] for r in pb]
         cfg = icl_preset(budget, name)
         sha = file_sha256(Path(dataset))[:12]
         # the preset's values are hashed too: retuning a preset must not reuse results (or checkpoints) of the old one
@@ -119,6 +118,7 @@ def exp_icl(ctx: Context) -> Path:
         reach = [float(full.trajectory_states(i)[:, 0].max()) for i in np.flatnonzero(full.group == 1)]
         row["good_demos_max_x"] = {"mean": float(np.mean(reach)), "max": float(np.max(reach))}
         pd_, dd = row["pbicrl"], row["default"]
+        pb_theta = pd_["theta"]
         lines += [f"### {name} (wall x >= {wall:g})", "",
                   "| | PBICRL, paper Alg. 2 (ours) | pbicrl default, MAP | ICL (ours) | paper PBICRL | paper ICL |",
                   "|---|---|---|---|---|---|",
