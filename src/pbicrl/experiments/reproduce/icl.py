@@ -22,8 +22,8 @@ def exp_icl(ctx: Context) -> Path:
 
     Not part of ``all`` (hours of RL per seed). ICL gets the good demonstrations (group 1, up to 200) of the
     dataset PBICRL draws its 100 + 100 from; its budget is the :func:`pbicrl.baselines.icl.icl_preset` named by
-    the environment variable ``PBICRL_ICL_BUDGET`` (``smoke``, ``default`` - about 45 min per HalfCheetah seed
-    on 2 cores - or ``paper``). ``PBICRL_ICL_ENVS`` (comma-separated, default ``halfcheetah,ant``) chooses the
+    the environment variable ``PBICRL_ICL_BUDGET`` (``smoke``, ``default`` - 23-31 min per HalfCheetah seed
+    measured on 2 shared cores - or ``paper``). ``PBICRL_ICL_ENVS`` (comma-separated, default ``halfcheetah,ant``) chooses the
     environments. Each ICL seed is a resumable task (checkpoints under ``<out>/icl/checkpoints``).
     """
     import hashlib
