@@ -176,3 +176,14 @@ def test_reproduce_all_full(tmp_path):
     assert {p.parent.name for p in reports} == {"grid", "point-mass", "fetch-reach", "halfcheetah", "ant", "sensitivity"}
     pm = json.loads((tmp_path / "point-mass" / "results.json").read_text())
     assert pm["iterations"] == 400_000 and pm["seeds"] == 5
+
+
+def test_identified_interval_prints_rounded_outward():
+    from pbicrl.experiments.reproduce.markdown import fmt_interval
+
+    # the Ant data's furthest good state 9.9978 once printed as "(10.00, ...]", seemingly excluding the wall at 10
+    assert fmt_interval([9.9978, 11.2]) == "(9.99, 11.20]"
+    assert fmt_interval([9.99, 10.0201]) == "(9.99, 10.03]"
+    assert fmt_interval([7.97, 62.5]) == "(7.97, 62.50]"
+    assert fmt_interval([1.5, float("inf")]) == "(1.50, inf]"
+    assert fmt_interval(None) == "-" and fmt_interval([None, None]) == "-"

@@ -24,9 +24,14 @@ def fmt_cmse(entry: dict) -> str:
 
 
 def fmt_interval(iv: Any) -> str:
+    """``(lo, hi]`` rounded outward to 0.01, so that the printed interval contains the identified one
+    (a lower end of 9.998 prints as 9.99, not as a misleading 10.00)."""
     if not iv or iv[0] is None:
         return "-"
-    return f"({iv[0]:.2f}, {iv[1]:.3g}]"
+    lo, hi = math.floor(round(float(iv[0]) * 100.0, 6)) / 100.0, float(iv[1])
+    if math.isfinite(hi):
+        hi = math.ceil(round(hi * 100.0, 6)) / 100.0
+    return f"({lo:.2f}, {hi:.2f}]"
 
 
 def write_report(ctx: Context, name: str, title: str, lines: list[str], results: dict, figures: Callable[[Path], list[str]] | None) -> Path:
