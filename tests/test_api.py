@@ -160,10 +160,12 @@ def test_reprs_are_short_and_never_dump_arrays(fresh, tmp_path):
     for obj in (post, loaded, prefs, state, big, loaded.attach()):
         r = repr(obj)
         assert len(r) < 400 and "array(" not in r and "\n" not in r, r
-    assert repr(prefs) == "Preferences(N=1200, groups=3, pairs=474,597, blocks=3, protocol='all')"
+    n = {k: int((big.group == k).sum()) for k in (1, 2, 3)}
+    pairs = n[1] * n[2] + n[1] * n[3] + n[2] * n[3]  # every cross-group pair, thousands separated
+    assert repr(prefs) == f"Preferences(N={big.n_trajectories}, groups=3, pairs={pairs:,}, blocks=3, protocol='all')"
     assert f"chains={post.n_chains}" in repr(post) and f"draws={post.n_draws}" in repr(post)
     assert "path=" in repr(loaded) and "path=" not in repr(post)
-    assert repr(state).startswith("ChainState(iteration=0, d=4,") and "N=1200" in repr(state)
+    assert repr(state).startswith("ChainState(iteration=0, d=4,") and f"N={big.n_trajectories}" in repr(state)
     from pbicrl.runs import load_run as load_record
 
     assert len(repr(load_record(tmp_path / "run"))) < 300

@@ -117,3 +117,21 @@ def test_equidistant_start_box_keeps_the_chebyshev_distance_fixed():
         e.close()
     with pytest.raises(ValueError, match="start"):
         FetchReachConstrainedEnv(start="moon")
+
+
+def test_balanced_start_box_lies_where_the_policies_were_trained_and_touches_no_region():
+    import itertools
+
+    lo, hi = (np.array(b) for b in START_BOXES["balanced"])
+    wlo, whi = (np.array(b) for b in START_BOXES["wide"])
+    assert np.all(lo >= wlo) and np.all(hi <= whi)
+    corners = np.array(list(itertools.product(*zip(lo, hi))))
+    assert FETCH_REACH_TASK.group(corners) == 1 and not FETCH_REACH_TASK.reached(corners).any()
+    # the y range spans the corridor between the boxes and both boxes' y ranges (reaches cross either or none)
+    assert lo[1] < 0.70 and hi[1] > 1.10
+    e = FetchReachConstrainedEnv(start="balanced")
+    try:
+        obs, _ = e.reset(seed=0)
+        assert np.all(obs >= lo - 0.01) and np.all(obs <= hi + 0.01)
+    finally:
+        e.close()

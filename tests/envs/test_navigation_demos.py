@@ -246,10 +246,10 @@ def test_cli_paper_protocol(tmp_path, capsys):
     assert main(["demos", "--env", "point_mass", "--paper-protocol", "-n", "2", "--p-good", "0.2",
                  "--out", str(out)]) == 0
     rep = json.loads(out.with_suffix(".json").read_text())
-    assert rep["p_good"] == 0.2 and rep["deterministic"] is False and rep["env_kwargs"] == {"start": "random"}
+    assert rep["p_good"] == 0.2 and rep["deterministic"] is False and rep["env_kwargs"] == {"start": "balanced"}
     assert min(Dataset.load(out).group_counts().values()) >= 2
     assert rep["command"] == (f"python -m pbicrl.envs demos --env point_mass --paper-protocol --p-good 0.2 --stochastic "
-                              f"--start random -n 2 --seed 0 --max-episodes 50000 --out {out}")
+                              f"--start balanced -n 2 --seed 0 --max-episodes 50000 --out {out}")
     capsys.readouterr()
     for argv, flag in ((["--p-good", "0.5"], "--p-good"), (["--paper-protocol", "--start", "wide"], "--start"),
                        (["--paper-protocol", "--g1-from-violating"], "--g1-from-violating"),

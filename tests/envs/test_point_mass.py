@@ -76,6 +76,29 @@ def test_start_distribution_edges():
         PointMassEnv(reward_weights="nope")
 
 
+def test_balanced_start_strips():
+    env = PointMassEnv(start="balanced")
+    starts, edges = [], []
+    for s in range(400):
+        obs, info = env.reset(seed=s)
+        x, y = (float(v) for v in obs)
+        if info["start_edge"] == "left":
+            assert 0 <= x <= 2.5 and 5 <= y <= 19
+        else:
+            assert 5 <= x <= 19 and 0 <= y <= 2.5
+        assert POINT_MASS_TASK.group([obs]) == 1  # the strips touch no region
+        starts.append((x, y))
+        edges.append(info["start_edge"])
+    along = np.array([y if e == "left" else x for (x, y), e in zip(starts, edges)])
+    assert along.min() < 6 and along.max() > 18 and 140 < edges.count("left") < 260
+    # the default edges are unchanged (same draws as before "balanced" existed)
+    a, _ = PointMassEnv().reset(seed=3)
+    b, _ = PointMassEnv(start="random").reset(seed=3)
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="start: expected one of"):
+        PointMassEnv(start="top")
+
+
 def test_reset_is_seeded():
     a, _ = PointMassEnv().reset(seed=11)
     b, _ = PointMassEnv().reset(seed=11)

@@ -43,7 +43,7 @@ __all__ = ["DATA_DIR", "add_subcommands", "build_parser", "main", "shipped_polic
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 _ROLE = {"true": "good", "nominal": "violating"}
 # start distributions a --paper-protocol run may use (PointMassEnv / FetchReachConstrainedEnv ``start``)
-_STARTS = {"point_mass": ("random", "left", "bottom"), "fetch_reach": ("wide", "equidistant")}
+_STARTS = {"point_mass": ("random", "left", "bottom", "balanced"), "fetch_reach": ("wide", "equidistant", "balanced")}
 
 
 def shipped_policy(env: str, role: str) -> Path:
@@ -231,8 +231,8 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
                    help="--paper-protocol: probability that a rollout uses the good policy (default: the shipped "
                         "data's, PAPER_PROTOCOL)")
     p.add_argument("--start", default=None,
-                   help="--paper-protocol: start distribution; point_mass: random (default) | left | bottom; "
-                        "fetch_reach: equidistant (default) | wide")
+                   help="--paper-protocol: start distribution; point_mass: balanced (default) | random | left | bottom; "
+                        "fetch_reach: balanced (default) | equidistant | wide")
     p.add_argument("--g1-from-violating", action="store_true",
                    help="take G1 from the violating policy's rollouts that enter no region (no good policy)")
     p.add_argument("-n", type=_positive_int, default=300,

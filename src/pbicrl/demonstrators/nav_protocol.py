@@ -24,12 +24,13 @@ __all__ = ["PAPER_PROTOCOL", "group_feature_balance", "generate_paper_protocol_d
 #: Settings of the shipped paper-protocol datasets (``pbicrl envs demos --paper-protocol`` defaults).
 #: ``p_good`` is the probability that a rollout is made by the good (true-reward) policy (see
 #: docs/envs.md for why it is small with the shipped policies); ``env_kwargs`` select the start
-#: distribution (point mass: its left/bottom edges; Fetch-Reach: the ``"equidistant"`` start box).
+#: distribution (point mass: the ``"balanced"`` strips along its left/bottom edges; Fetch-Reach: the
+#: ``"balanced"`` start box).
 PAPER_PROTOCOL: dict[str, dict[str, Any]] = {
     "point_mass": {"p_good": 0.01, "deterministic": False, "n_per_group": 300, "seed": 0,
-                   "env_kwargs": {"start": "random"}},
+                   "env_kwargs": {"start": "balanced"}},
     "fetch_reach": {"p_good": 0.01, "deterministic": False, "n_per_group": 300, "seed": 0,
-                    "env_kwargs": {"start": "equidistant"}},
+                    "env_kwargs": {"start": "balanced"}},
 }
 
 
@@ -48,11 +49,15 @@ def _start_description(environment: Any) -> str:
         lo, hi = environment.start_low, environment.start_high
         return (f"{environment.start!r} box: uniform on " + ", ".join(f"{a} in [{l:g}, {h:g}]" for a, l, h in zip("xyz", lo, hi))
                 + " (gripper driven there at reset)")
+    from pbicrl.envs.point_mass import START_STRIPS
+
     start = getattr(environment, "start", "random")
-    edges = {"left": "left edge x in [0, 1], y in [9, 19]", "bottom": "bottom edge x in [9, 19], y in [0, 1]"}
-    if start == "random":
-        return f"uniform on the {edges['left']} or the {edges['bottom']}, probability 1/2 each"
-    return f"uniform on the {edges[start]}"
+    (a_lo, a_hi), (c_lo, c_hi) = START_STRIPS[start]
+    edges = {"left": f"left strip x in [{c_lo:g}, {c_hi:g}], y in [{a_lo:g}, {a_hi:g}]",
+             "bottom": f"bottom strip x in [{a_lo:g}, {a_hi:g}], y in [{c_lo:g}, {c_hi:g}]"}
+    if start in ("left", "bottom"):
+        return f"uniform on the {edges[start]}"
+    return f"{start!r}: uniform on the {edges['left']} or the {edges['bottom']}, probability 1/2 each"
 
 
 def _pooled_smd(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:

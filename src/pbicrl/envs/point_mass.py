@@ -6,7 +6,10 @@ when ``||s - (20, 20)|| <= 3`` and is cut (``truncated``) after 60 steps.  Start
 uniformly on the left edge (``x in [0, 1], y in [9, 19]``) or the bottom edge
 (``x in [9, 19], y in [0, 1]``), each with probability 1/2.  Every start is 19-20 from the
 goal centre in Chebyshev distance (the fewest steps, as each axis moves at most 1 per step),
-whichever part of an edge it is on.
+whichever part of an edge it is on.  ``start="balanced"`` (the shipped demonstrations) widens
+both edge strips to ``[0, 2.5] x [5, 19]``: the starts that miss both regions then lie both
+above and below the orange disc (and its mirror image for red), so that region-free and
+region-crossing rollouts have equal nominal-feature means (docs/envs.md).
 
 The reward of a transition is ``w . phi(s')`` with the features of
 :mod:`pbicrl.envs.regions` evaluated at the next state; ``w`` is the true weight vector
@@ -29,10 +32,15 @@ try:
 except ImportError as exc:  # pragma: no cover - exercised only without the extra
     raise ImportError('pbicrl.envs.point_mass needs gymnasium: pip install "pbicrl[envs]"') from exc
 
-__all__ = ["HIGH", "LOW", "MAX_STEPS", "POINT_MASS_TASK", "PointMassEnv"]
+__all__ = ["HIGH", "LOW", "MAX_STEPS", "POINT_MASS_TASK", "START_STRIPS", "PointMassEnv"]
 
 LOW, HIGH = -1.0, 20.0
 MAX_STEPS = 60
+#: ``start`` -> (along-edge range, across-edge range) of the start strips.
+START_STRIPS: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
+    "random": ((9.0, 19.0), (0.0, 1.0)), "left": ((9.0, 19.0), (0.0, 1.0)), "bottom": ((9.0, 19.0), (0.0, 1.0)),
+    "balanced": ((5.0, 19.0), (0.0, 2.5)),
+}
 
 POINT_MASS_TASK = NavigationTask(
     goal=Disc((20.0, 20.0), 3.0, closed=True),
@@ -52,8 +60,9 @@ class PointMassEnv(gym.Env):
         Weights of the per-state reward ``w . phi(s')``.
     max_steps : int
         Steps before truncation (paper: 60).
-    start : {"random", "left", "bottom"}
-        Start edge; ``"random"`` picks either with probability 1/2.
+    start : {"random", "left", "bottom", "balanced"}
+        Start edge; ``"random"`` picks either with probability 1/2; ``"balanced"`` too, from the
+        wider strips of :data:`START_STRIPS`.
 
     Notes
     -----
@@ -69,8 +78,8 @@ class PointMassEnv(gym.Env):
         self.w = self.task.weights(reward_weights)
         if int(max_steps) < 1:
             raise ValueError(f"max_steps: must be >= 1, got {max_steps}")
-        if start not in ("random", "left", "bottom"):
-            raise ValueError(f"start: expected 'random', 'left' or 'bottom', got {start!r}")
+        if start not in START_STRIPS:
+            raise ValueError(f"start: expected one of {', '.join(map(repr, START_STRIPS))}, got {start!r}")
         self.max_steps = int(max_steps)
         self.start = start
         self.observation_space = spaces.Box(LOW, HIGH, shape=(2,), dtype=np.float32)
@@ -88,8 +97,10 @@ class PointMassEnv(gym.Env):
 
     def sample_start(self, rng: np.random.Generator, edge: str | None = None) -> tuple[NDArray[np.float64], str]:
         """Draw a start position and its edge (``"left"`` or ``"bottom"``)."""
-        edge = edge or (self.start if self.start != "random" else ("left" if rng.random() < 0.5 else "bottom"))
-        along, across = rng.uniform(9.0, 19.0), rng.uniform(0.0, 1.0)
+        if edge is None:
+            edge = self.start if self.start in ("left", "bottom") else ("left" if rng.random() < 0.5 else "bottom")
+        (a_lo, a_hi), (c_lo, c_hi) = START_STRIPS[self.start]
+        along, across = rng.uniform(a_lo, a_hi), rng.uniform(c_lo, c_hi)
         pos = np.array([across, along]) if edge == "left" else np.array([along, across])
         return pos, edge
 
