@@ -458,10 +458,10 @@ def test_chain_workers_die_with_their_parent(sig):
 
 
 @pytest.mark.skipif(not LINUX, reason="/proc")
-def test_ctrl_c_stops_inference_at_once(tmp_path, demo):
+def test_ctrl_c_stops_inference_at_once(tmp_path, demo, with_default_sigint):
     out = tmp_path / "run"
-    proc = _start([PY, "-m", "pbicrl.cli", "infer", str(demo), "--out", str(out), "--iterations", "1000000000",
-                   "--chains", "2", "--jobs", "2", "--no-progress"])
+    proc = _start(with_default_sigint([PY, "-m", "pbicrl.cli", "infer", str(demo), "--out", str(out), "--iterations",
+                                       "1000000000", "--chains", "2", "--jobs", "2", "--no-progress"]))
     kids: list[int] = []
     try:
         assert _wait(lambda: len(_children(proc.pid)) >= 2, 120)
