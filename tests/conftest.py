@@ -23,7 +23,8 @@ def ranked_problem():
 
 # A child inherits an ignored SIGINT (POSIX: commands started in the background by a non-interactive shell, e.g.
 # `pytest &` or `nohup`), and Python then installs no KeyboardInterrupt handler: Ctrl-C tests would hang there.
-_DEFAULT_SIGINT_THEN_EXEC = "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execv(sys.argv[1], sys.argv[1:])"
+_DEFAULT_SIGINT_THEN_EXEC = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+                             "os.execv(sys.argv[1], sys.argv[1:])")
 
 
 @pytest.fixture

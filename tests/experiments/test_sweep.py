@@ -258,7 +258,7 @@ def test_kill_and_resume_loses_nothing_and_duplicates_nothing(tmp_path):
     cfg.write_text(f"[base]\nkind = 'selftest'\nsleep = 0.4\n[grid]\nvalue = {list(range(n))}\n")
     root = tmp_path / "out"
     cmd = [sys.executable, "-m", "pbicrl.cli", "sweep", str(cfg), "--out", str(root), "--workers", "2", "--no-progress"]
-    proc = subprocess.Popen(with_default_sigint(cmd), start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not root.is_dir() or len(_run_dirs(root)) < 3):
         time.sleep(0.05)
@@ -285,7 +285,8 @@ def test_ctrl_c_stops_the_workers_and_keeps_finished_runs(tmp_path, with_default
     cfg.write_text("[base]\nkind = 'selftest'\n[grid]\nsleep = [0.1, 60.0]\nvalue = [0, 1, 2]\n")  # 3 short, 3 long
     root = tmp_path / "out"
     cmd = [sys.executable, "-m", "pbicrl.cli", "sweep", str(cfg), "--out", str(root), "--workers", "2", "--no-progress"]
-    proc = subprocess.Popen(with_default_sigint(cmd), start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(with_default_sigint(cmd), start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not root.is_dir() or len(_run_dirs(root)) < 3):
         time.sleep(0.05)

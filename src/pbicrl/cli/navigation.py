@@ -231,8 +231,8 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
                    help="--paper-protocol: probability that a rollout uses the good policy (default: the shipped "
                         "data's, PAPER_PROTOCOL)")
     p.add_argument("--start", default=None,
-                   help="--paper-protocol: start distribution; point_mass: balanced (default) | random | left | bottom; "
-                        "fetch_reach: balanced (default) | equidistant | wide")
+                   help="--paper-protocol: start distribution; point_mass: balanced (default) | random | left | "
+                        "bottom; fetch_reach: balanced (default) | equidistant | wide")
     p.add_argument("--g1-from-violating", action="store_true",
                    help="take G1 from the violating policy's rollouts that enter no region (no good policy)")
     p.add_argument("-n", type=_positive_int, default=300,
