@@ -1,4 +1,4 @@
-"""Shared fixtures: small synthetic problems with known constraints."""
+"""Shared fixtures: small synthetic problems with known constraints, and a command wrapper for Ctrl-C tests."""
 
 from __future__ import annotations
 
@@ -21,8 +21,9 @@ def ranked_problem():
     return make_problem(25, noise=1.0, seed=5)
 
 
-# A child inherits an ignored SIGINT (POSIX: commands started in the background by a non-interactive shell, e.g.
-# `pytest &` or `nohup`), and Python then installs no KeyboardInterrupt handler: Ctrl-C tests would hang there.
+# A child inherits an ignored SIGINT (POSIX: a non-interactive shell starts `&` commands with SIGINT ignored, e.g.
+# `nohup python -m pytest &` in a script), and Python then installs no KeyboardInterrupt handler: Ctrl-C tests
+# would hang there.
 _DEFAULT_SIGINT_THEN_EXEC = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
                              "os.execv(sys.argv[1], sys.argv[1:])")
 
