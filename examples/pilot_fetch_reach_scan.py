@@ -5,20 +5,13 @@ fresh pilot (other PILOT_OFFSET).
 python examples/pilot_fetch_reach_scan.py POOL.npy
 """
 import numpy as np, itertools, sys
+
+from _pilot_balance import expected_smds
 A = np.load(sys.argv[1])
 good, grp, reached, igd, gnr, L, x0, y0, z0 = A.T
 def smd(sel, p_good=0.01):
-    g = good[sel]; w = np.where(g == 1, p_good / max(g.sum(), 1), (1 - p_good) / (g == 0).sum())
-    keep = reached[sel] == 1; gr = grp[sel]; res = {}
-    for fname, x in (("igd", igd[sel]), ("gnr", gnr[sel])):
-        mu, var = {}, {}
-        for k in (1, 2, 3):
-            m = keep & (gr == k); ww = w[m]
-            if ww.sum() == 0: return None
-            mu[k] = np.sum(ww * x[m]) / ww.sum(); var[k] = np.sum(ww * (x[m] - mu[k]) ** 2) / ww.sum()
-        for a, b in ((1, 2), (1, 3), (2, 3)):
-            res[f"{fname}{a}{b}"] = (mu[a] - mu[b]) / np.sqrt((var[a] + var[b]) / 2)
-    return res
+    r = expected_smds(good[sel], grp[sel], reached[sel], {"igd": igd[sel], "gnr": gnr[sel]}, p_good)
+    return None if r is None else {f"{f}{pair.replace('-', '')}": d for f in ("igd", "gnr") for pair, d in r[f].items()}
 rows = []
 for xl, yl, yh, zh in itertools.product([1.15, 1.20, 1.25], np.arange(0.50, 0.76, 0.05), np.arange(1.05, 1.31, 0.05), [0.80, 0.90]):
     sel = (x0 >= xl - 0.01) & (y0 >= yl) & (y0 <= yh) & (z0 <= zh + 0.01)

@@ -8,6 +8,8 @@ import sys, json, os, time
 import numpy as np, torch
 from pbicrl.demonstrators.navigation import make_nav_env
 from pbicrl.demonstrators.nav_rollouts import rollout_episodes, policy_actor
+
+from _pilot_balance import expected_smds
 torch.set_num_threads(1)
 box = [float(v) for v in sys.argv[1].split(",")]
 n_v, n_g = int(sys.argv[2]), int(sys.argv[3])
@@ -16,6 +18,7 @@ env.start_low, env.start_high = np.array(box[:3]), np.array(box[3:])
 OFF = int(os.environ.get("PILOT_OFFSET", "0"))
 rows = []; t0 = time.time()
 for name, n, seed in (("violating", n_v, 10_000 + OFF), ("good", n_g, 500_000 + OFF)):
+    torch.manual_seed(seed)  # the sampled actions (the reset seeds are set per episode)
     act = policy_actor(f"src/pbicrl/data/policies/fetch_reach_{name}.zip", False)
     for ep in rollout_episodes(env, act, n, seed=seed, policy_name=name):
         f = ep.features.mean(0)
@@ -30,16 +33,8 @@ for name, m in (("violating", good == 0), ("good", good == 1)):
                  "len": [round(float(L[(grp == k) & m & (reached == 1)].mean()), 2) if ((grp == k) & m & (reached == 1)).any() else None for k in (1, 2, 3)],
                  "igd": [round(float(igd[(grp == k) & m & (reached == 1)].mean()), 3) if ((grp == k) & m & (reached == 1)).any() else None for k in (1, 2, 3)]}
 def smd(p_good):
-    w = np.where(good == 1, p_good / max((good == 1).sum(), 1), (1 - p_good) / (good == 0).sum())
-    keep = reached == 1; res = {}
-    for fname, x in (("igd", igd), ("gnr", gnr)):
-        mu, var = {}, {}
-        for k in (1, 2, 3):
-            m = keep & (grp == k); ww = w[m]
-            mu[k] = np.sum(ww * x[m]) / ww.sum(); var[k] = np.sum(ww * (x[m] - mu[k]) ** 2) / ww.sum()
-        res[fname] = {f"{a}-{b}": round(float((mu[a] - mu[b]) / np.sqrt((var[a] + var[b]) / 2)), 3) for a, b in ((1, 2), (1, 3), (2, 3))}
-    res["max"] = max(abs(v) for f in ("igd", "gnr") for v in res[f].values())
-    return res
+    r = expected_smds(good, grp, reached, {"igd": igd, "gnr": gnr}, p_good)
+    return {k: (round(v, 3) if k == "max" else {pair: round(d, 3) for pair, d in v.items()}) for k, v in r.items()}
 for p in (0.0, 0.01):
     out[f"p={p}"] = smd(p)
 print(json.dumps(out))

@@ -14,6 +14,8 @@ import torch
 from pbicrl.envs.point_mass import PointMassEnv
 from pbicrl.demonstrators.nav_rollouts import rollout_episodes, policy_actor
 
+from _pilot_balance import expected_smds
+
 torch.set_num_threads(1)
 spec, n_v, n_g = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 det = len(sys.argv) > 4 and sys.argv[4] == "deterministic"
@@ -42,6 +44,7 @@ elif spec != "edges":
 rows = []
 OFF = int(__import__("os").environ.get("PILOT_OFFSET", "0"))
 for name, n, seed in (("violating", n_v, 10_000 + OFF), ("good", n_g, 500_000 + OFF)):
+    torch.manual_seed(seed)  # the sampled actions (the reset seeds are set per episode)
     act = policy_actor(f"src/pbicrl/data/policies/point_mass_{name}.zip", det)
     for ep in rollout_episodes(env, act, n, seed=seed, policy_name=name):
         f = ep.features.mean(0)
@@ -54,22 +57,8 @@ for name, m in (("violating", good == 0), ("good", good == 1)):
                  "groups": [int(((grp == k) & m).sum()) for k in (1, 2, 3)],
                  "len_by_group": [round(float(L[(grp == k) & m].mean()), 2) if ((grp == k) & m).any() else None for k in (1, 2, 3)]}
 def smd_table(p_good):
-    w = np.where(good == 1, p_good / max((good == 1).sum(), 1), (1 - p_good) / (good == 0).sum())
-    keep = reached == 1
-    res = {}
-    for fname, x in (("inv_goal_distance", igd), ("goal_not_reached", gnr)):
-        mu, var, nn = {}, {}, {}
-        for k in (1, 2, 3):
-            m = keep & (grp == k)
-            ww = w[m]
-            mu[k] = np.sum(ww * x[m]) / ww.sum()
-            var[k] = np.sum(ww * (x[m] - mu[k]) ** 2) / ww.sum()
-        d = {}
-        for a, b in ((1, 2), (1, 3), (2, 3)):
-            d[f"{a}-{b}"] = round(float((mu[a] - mu[b]) / np.sqrt((var[a] + var[b]) / 2)), 3)
-        res[fname] = d
-    res["max"] = max(abs(v) for f in ("inv_goal_distance", "goal_not_reached") for v in res[f].values())
-    return res
+    r = expected_smds(good, grp, reached, {"inv_goal_distance": igd, "goal_not_reached": gnr}, p_good)
+    return {k: (round(v, 3) if k == "max" else {pair: round(d, 3) for pair, d in v.items()}) for k, v in r.items()}
 for p in (0.0, 0.005, 0.01, 0.02):
     out[f"p_good={p}"] = smd_table(p)
 print(json.dumps(out))

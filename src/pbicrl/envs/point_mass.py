@@ -37,9 +37,9 @@ __all__ = ["HIGH", "LOW", "MAX_STEPS", "POINT_MASS_TASK", "START_STRIPS", "Point
 LOW, HIGH = -1.0, 20.0
 MAX_STEPS = 60
 #: ``start`` -> (along-edge range, across-edge range) of the start strips.
+_EDGES = ((9.0, 19.0), (0.0, 1.0))
 START_STRIPS: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
-    "random": ((9.0, 19.0), (0.0, 1.0)), "left": ((9.0, 19.0), (0.0, 1.0)), "bottom": ((9.0, 19.0), (0.0, 1.0)),
-    "balanced": ((5.0, 19.0), (0.0, 2.5)),
+    "random": _EDGES, "left": _EDGES, "bottom": _EDGES, "balanced": ((5.0, 19.0), (0.0, 2.5)),
 }
 
 POINT_MASS_TASK = NavigationTask(
