@@ -208,3 +208,21 @@ def test_close_loop_smoke(tmp_path):
     table = (tmp_path / "cl" / "table.md").read_text()
     assert table.count("\n") == 2 + 3 + 4
     assert close_loop(args) == 0  # everything cached: nothing retrained
+    from pbicrl.experiments.close_loop import _data_tag
+
+    tag = _data_tag("point_mass")
+    assert res["envs"]["point_mass"]["posterior"]["data"] == tag
+    assert (tmp_path / "cl" / "infer" / tag / "summary.json").is_file()
+    assert (tmp_path / "cl" / "train" / "point_mass" / f"inferred-{tag}" / "seed0").is_dir()
+    assert (tmp_path / "cl" / "train" / "point_mass" / "true" / "seed0").is_dir()  # does not depend on the data
+
+
+def test_close_loop_names_data_dependent_stages_by_the_file_content():
+    import hashlib
+
+    from pbicrl.experiments.close_loop import _data_tag
+    from pbicrl.inference.data import resolve_dataset_path
+
+    for name in ("point_mass", "halfcheetah"):
+        sha = hashlib.sha256(resolve_dataset_path(name).read_bytes()).hexdigest()
+        assert _data_tag(name) == f"{name}-{sha[:12]}"

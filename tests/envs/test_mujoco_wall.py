@@ -123,3 +123,37 @@ def test_rollout_shapes_and_time_limit():
     assert ro["features"][:, 0].sum() == pytest.approx(ro["x"][-1] - float(ro["x0"]))
     np.testing.assert_allclose(ro["features"][:, 1], np.sum(ro["actions"] ** 2, axis=1))
     env.close()
+
+
+def _set_torso_quat(env, quat) -> None:
+    u = env.unwrapped
+    qpos, qvel = u.data.qpos.copy(), u.data.qvel.copy()
+    qpos[3:7] = quat
+    u.set_state(qpos, qvel)
+
+
+def test_terminate_when_flipped_ends_an_upside_down_ant_episode_only_when_asked():
+    """An ant on its back stays 'healthy' for Gymnasium (torso height in range); the training option ends it."""
+    upside_down = [0.0, 1.0, 0.0, 0.0]  # half a turn about x: the torso's up axis points down
+    for flag in (False, True):
+        env = make_wall_env("ant", constrained=True, max_episode_steps=20, terminate_when_flipped=flag)
+        env.reset(seed=0)
+        _, _, terminated, _, info = env.step(np.zeros(env.action_space.shape))
+        assert not terminated and not info["flipped"]  # upright after reset
+        _set_torso_quat(env, upside_down)
+        _, reward, terminated, _, info = env.step(np.zeros(env.action_space.shape))
+        assert info["flipped"] is flag and terminated is flag
+        env.close()
+    with pytest.raises(ValueError, match="terminate_when_flipped"):
+        make_wall_env("halfcheetah", constrained=True, terminate_when_flipped=True)
+
+
+def test_torso_up_axis_from_the_quaternion():
+    env = make_wall_env("ant", constrained=True)
+    env.reset(seed=1)
+    wrapper = env.env
+    for quat, up in (([1.0, 0.0, 0.0, 0.0], 1.0), ([0.0, 0.0, 1.0, 0.0], -1.0),
+                     ([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0], 0.0)):  # a quarter turn: on its side
+        _set_torso_quat(env, quat)
+        assert wrapper.torso_up_z() == pytest.approx(up, abs=1e-12)
+    env.close()

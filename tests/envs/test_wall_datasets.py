@@ -139,6 +139,9 @@ def test_generate_demos_labels_and_rejects(tmp_path):
         generate_wall_demos("halfcheetah", pol, pol, 2, n_steps=30, max_attempts_factor=1)
     with pytest.raises(ValueError, match="mode"):
         train_wall_policy("halfcheetah", "bad", 10, tmp_path / "q")
+    with pytest.raises(ValueError, match="terminate_when_flipped: only applies to env 'ant'"):
+        train_wall_policy("halfcheetah", "good", 10, tmp_path / "r", terminate_when_flipped=True)
+    assert not (tmp_path / "r").exists()  # refused before anything was written
 
 
 def test_quantized_rollout_is_self_consistent():

@@ -62,7 +62,8 @@ def _cmd_train_wall(args: argparse.Namespace) -> int:
               "learning_starts": args.learning_starts, "checkpoint_every": args.checkpoint_every,
               "log_every": args.log_every, "torch_threads": args.torch_threads,
               "init_from": args.init_from, "progress": not args.quiet, "deadline": args.deadline,
-              "ent_coef": args.ent_coef, "position_bonus": args.position_bonus}
+              "ent_coef": args.ent_coef, "position_bonus": args.position_bonus,
+              "terminate_when_flipped": args.terminate_when_flipped}
     try:
         path = train_wall_policy(args.env, args.mode, args.steps, args.out, **kwargs)
     except KeyboardInterrupt as exc:
@@ -122,6 +123,8 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
                    help="SAC entropy coefficient: auto, auto_<initial> (e.g. auto_0.05) or a number")
     p.add_argument("--position-bonus", type=float, default=0.0,
                    help="training-only shaping of the good demonstrator: + B * min(x, wall) per step (0: paper)")
+    p.add_argument("--terminate-when-flipped", action="store_true",
+                   help="training-only (ant): end an episode when the torso turns upside down, as a fall does")
     p.add_argument("--deadline", type=_utc_time, default=None,
                    help="UTC time (e.g. 2026-11-22T02:10:00Z) at which to stop and finalise the policy early")
     p.add_argument("--quiet", action="store_true", help="do not echo progress to stderr")

@@ -140,6 +140,12 @@ class WallPenaltyWrapper(gym.Wrapper):
         for the rest of the episode (with ``20 * dx`` alone, the return only depends on the
         final x and an exploring policy learns to stop early). 0 (default) is the paper's reward.
         The features (and so the demonstrations' data) do not depend on it.
+    terminate_when_flipped : bool
+        Training-only: end the episode (as Gymnasium ends it on a fall) when the torso turns
+        upside down, i.e. the z-component of its up axis drops below 0. Gymnasium's Ant
+        only checks the torso height, and an ant on its back (height about 0.27) stays
+        "healthy" for the rest of the episode without being able to walk. Needs a robot
+        whose ``qpos[3:7]`` is the torso's quaternion (Ant).
     nominal_weights : sequence of float, length 2
         Weights of ``[forward_displacement, action_sq_norm]``.
 
@@ -152,7 +158,7 @@ class WallPenaltyWrapper(gym.Wrapper):
 
     def __init__(self, env: gym.Env, wall_x: float, penalty: float, *, constrained: bool,
                  alive_bonus: float = 0.0, position_bonus: float = 0.0,
-                 nominal_weights=NOMINAL_WEIGHTS) -> None:
+                 terminate_when_flipped: bool = False, nominal_weights=NOMINAL_WEIGHTS) -> None:
         super().__init__(env)
         if not (np.isfinite(position_bonus) and position_bonus >= 0):
             raise ValueError(f"position_bonus: must be a finite value >= 0, got {position_bonus}")
@@ -168,11 +174,21 @@ class WallPenaltyWrapper(gym.Wrapper):
         self.constrained = bool(constrained)
         self.alive_bonus = float(alive_bonus)
         self.position_bonus = float(position_bonus)
+        self.terminate_when_flipped = bool(terminate_when_flipped)
+        # a free joint (MuJoCo type 0) first: qpos[3:7] is then the torso's quaternion
+        if self.terminate_when_flipped and int(self.env.unwrapped.model.jnt_type[0]) != 0:
+            raise ValueError("terminate_when_flipped: needs a free-floating torso (qpos[3:7] a quaternion), "
+                             "as in Ant")
         self.nominal_weights = w
         self._x = 0.0
 
     def _qpos_x(self) -> float:
         return float(self.env.unwrapped.data.qpos[0])
+
+    def torso_up_z(self) -> float:
+        """z-component of the torso's up axis in the world frame (1 upright, -1 on its back)."""
+        _, qx, qy, _ = (float(v) for v in self.env.unwrapped.data.qpos[3:7])
+        return 1.0 - 2.0 * (qx * qx + qy * qy)
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
@@ -186,6 +202,8 @@ class WallPenaltyWrapper(gym.Wrapper):
         obs, base_reward, terminated, truncated, info = self.env.step(action)
         x_after = self._qpos_x()
         self._x = x_after
+        flipped = self.terminate_when_flipped and self.torso_up_z() < 0.0
+        terminated = bool(terminated or flipped)
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         # features use the action actually applied (MuJoCo clips to ctrlrange = action space)
         a = np.clip(a, self.env.action_space.low, self.env.action_space.high)
@@ -200,12 +218,13 @@ class WallPenaltyWrapper(gym.Wrapper):
             reward += self.position_bonus * min(x_after, self.wall_x)
         info = dict(info)
         info.update(features=phi, x_position=x_after, x_position_before=x_before, in_wall=bool(in_wall),
-                    wall_penalty=pen, nominal_reward=nominal, base_reward=float(base_reward))
+                    wall_penalty=pen, nominal_reward=nominal, base_reward=float(base_reward), flipped=flipped)
         return obs, reward, terminated, truncated, info
 
 
 def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
-                  render_mode: str | None = None, position_bonus: float = 0.0, **overrides: Any) -> gym.Env:
+                  render_mode: str | None = None, position_bonus: float = 0.0,
+                  terminate_when_flipped: bool = False, **overrides: Any) -> gym.Env:
     """Create a wall environment.
 
     Parameters
@@ -220,6 +239,9 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
         Passed to :func:`gymnasium.make`.
     position_bonus : float
         Training-only shaping of the good demonstrator, see :class:`WallPenaltyWrapper`.
+    terminate_when_flipped : bool
+        Training-only: end the episode when the torso is upside down (Ant), see
+        :class:`WallPenaltyWrapper`.
     **overrides
         Extra keyword arguments for :func:`gymnasium.make` (override the spec's).
 
@@ -238,7 +260,8 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
     quiet_mujoco_warnings()  # no MUJOCO_LOG.TXT in the working directory, no settotalmass notice per env
     base = gym.make(spec.env_id, render_mode=render_mode, max_episode_steps=10**9, **kwargs)
     env = WallPenaltyWrapper(base, spec.wall_x, spec.penalty, constrained=constrained,
-                             alive_bonus=spec.alive_bonus, position_bonus=position_bonus)
+                             alive_bonus=spec.alive_bonus, position_bonus=position_bonus,
+                             terminate_when_flipped=terminate_when_flipped)
     return gym.wrappers.TimeLimit(env, max_episode_steps=int(max_episode_steps))
 
 

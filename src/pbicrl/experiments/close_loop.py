@@ -16,7 +16,10 @@ For each environment (point mass; HalfCheetah with a wall) the experiment
    return and nominal return (:func:`pbicrl.safe_rl.evaluate_policy`).
 
 Everything is cached under ``--out`` (inference runs, ``train-safe`` directories, evaluations), so a rerun
-resumes where it stopped and retraining is never needed for the table. Results go to
+resumes where it stopped and retraining is never needed for the table. The stages that depend on a shipped
+dataset (its inference run, the ``inferred`` policies and their evaluations) are named by the first 12 hex
+digits of the file's SHA-256 (``infer/point_mass-51c6750fa6d9``), so a regenerated file is never read through
+an older run. Results go to
 ``--out/results.json`` and ``table.md``; with ``--docs DIR`` also ``DIR/figures/close_loop.png``,
 ``close_loop_point_mass_paths.png`` and ``close_loop_results.json``.
 
@@ -134,9 +137,18 @@ def _policy_cost(kind: str) -> tuple[str, str]:
     raise ValueError(f"policies: unknown policy kind {kind!r}; use nominal, true, inferred or inferred-<mode>")
 
 
+def _data_tag(env: str) -> str:
+    """``<env>-<first 12 hex digits of the shipped file's SHA-256>``: names every stage that depends on the data."""
+    from pbicrl.experiments.kinds import file_sha256
+    from pbicrl.inference.data import resolve_dataset_path
+
+    return f"{env}-{file_sha256(resolve_dataset_path(env))[:12]}"
+
+
 def _infer(plan: EnvPlan, cfg: CloseLoopConfig, out: Path) -> Path:
-    """The inference run of ``plan.env`` (cached)."""
-    run_dir = out / "infer" / plan.env
+    """The inference run of ``plan.env`` (cached per content of the shipped dataset: a regenerated file
+    gets a new run, and the ``inferred`` policies trained on it with it)."""
+    run_dir = out / "infer" / _data_tag(plan.env)
     if (run_dir / "summary.json").is_file():
         return run_dir
     from pbicrl.api import infer
@@ -182,7 +194,7 @@ def run(cfg: CloseLoopConfig, out: Path, docs: Path | None = None) -> dict[str, 
         from pbicrl.runs import load_run
 
         rec = load_run(run_dir)
-        post = {"selected": rec.selected(), "p_constraint": dict(zip(rec.feature_names, rec.p_constraint.tolist())),
+        post = {"data": run_dir.name, "selected": rec.selected(), "p_constraint": dict(zip(rec.feature_names, rec.p_constraint.tolist())),
                 "parameters": {n: {"median": float(m), "ci90": [float(lo), float(hi)]} for n, m, lo, hi in
                                zip(rec.parameter_names, *(rec.parameter_conditional()[k] for k in ("median", "low", "high")))}}
         env_res: dict[str, Any] = {"plan": asdict(plan), "posterior": post, "policies": {}}
@@ -190,14 +202,16 @@ def run(cfg: CloseLoopConfig, out: Path, docs: Path | None = None) -> dict[str, 
         for kind, cost, mode in kinds:
             per_seed = []
             for seed in plan.seeds:
-                d = out / "train" / plan.env / kind / f"seed{seed}"
+                # policies trained on an inferred cost are named by the data they were inferred from
+                stage = f"{kind}-{run_dir.name}" if cost == "inferred" else kind
+                d = out / "train" / plan.env / stage / f"seed{seed}"
                 t0 = time.time()
                 _log(f"{plan.env} {kind} seed {seed}: training {plan.steps} steps (resumes if interrupted)")
                 s = train_safe(d, plan.env, plan.steps, plan.cost_limit, run=run_dir if cost == "inferred" else None,
                                cost=cost, mode=mode, seed=seed, ppo=plan.ppo, warmup_steps=plan.warmup_steps,
                                eval_episodes=0, progress=False)
                 timing[f"{plan.env}/{kind}/seed{seed}/train"] = time.time() - t0
-                ev_path = out / "eval" / f"{plan.env}-{kind}-seed{seed}.json"
+                ev_path = out / "eval" / f"{plan.env}-{stage}-seed{seed}.json"
                 if ev_path.is_file():
                     ev = json.loads(ev_path.read_text())
                 else:
@@ -242,7 +256,9 @@ def run(cfg: CloseLoopConfig, out: Path, docs: Path | None = None) -> dict[str, 
         plot(results, fig_dir / "close_loop.png")
         pm = next((p for p in cfg.plans if p.env == "point_mass"), None)
         if pm is not None:
-            paths = {k: _paths(load_policy(out / "train" / "point_mass" / k / f"seed{pm.seeds[0]}"), 20)
+            tag = _data_tag("point_mass")
+            paths = {k: _paths(load_policy(out / "train" / "point_mass" / (f"{k}-{tag}" if k.startswith("inferred")
+                                                                          else k) / f"seed{pm.seeds[0]}"), 20)
                      for k in pm.policies}
             plot_paths(paths, fig_dir / "close_loop_point_mass_paths.png", seed=pm.seeds[0])
     print(table)
