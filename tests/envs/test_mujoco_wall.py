@@ -157,3 +157,7 @@ def test_torso_up_axis_from_the_quaternion():
         _set_torso_quat(env, quat)
         assert wrapper.torso_up_z() == pytest.approx(up, abs=1e-12)
     env.close()
+    cheetah = make_wall_env("halfcheetah", constrained=True)
+    with pytest.raises(ValueError, match="torso_up_z"):
+        cheetah.env.torso_up_z()
+    cheetah.close()

@@ -176,7 +176,8 @@ class WallPenaltyWrapper(gym.Wrapper):
         self.position_bonus = float(position_bonus)
         self.terminate_when_flipped = bool(terminate_when_flipped)
         # a free joint (MuJoCo type 0) first: qpos[3:7] is then the torso's quaternion
-        if self.terminate_when_flipped and int(self.env.unwrapped.model.jnt_type[0]) != 0:
+        self._free_torso = int(self.env.unwrapped.model.jnt_type[0]) == 0
+        if self.terminate_when_flipped and not self._free_torso:
             raise ValueError("terminate_when_flipped: needs a free-floating torso (qpos[3:7] a quaternion), "
                              "as in Ant")
         self.nominal_weights = w
@@ -186,7 +187,9 @@ class WallPenaltyWrapper(gym.Wrapper):
         return float(self.env.unwrapped.data.qpos[0])
 
     def torso_up_z(self) -> float:
-        """z-component of the torso's up axis in the world frame (1 upright, -1 on its back)."""
+        """z-component of the torso's up axis in the world frame (1 upright, -1 on its back; Ant only)."""
+        if not self._free_torso:
+            raise ValueError("torso_up_z: this robot's torso is not free-floating (qpos[3:7] is not a quaternion)")
         _, qx, qy, _ = (float(v) for v in self.env.unwrapped.data.qpos[3:7])
         return 1.0 - 2.0 * (qx * qx + qy * qy)
 
