@@ -1,28 +1,50 @@
 """Roll out a wall demonstrator N times (stochastic actions unless ``deterministic`` is given; reset seeds
-900000+, not used for data) and print how many episodes last 500 steps, cross the wall, reach wall - 0.5, and the
-furthest x of each.
+``FIRST_SEED + j``, default 900000+, not used for data) and print how many episodes last 500 steps, cross the
+wall, reach wall - 0.5 (complete, not crossing), and the furthest x of each; for Ant also how many complete,
+non-crossing episodes end with the torso upside down.
 
-Usage: python examples/check_wall_policy.py ant training/ant_good/model.zip 20 [deterministic]
+Usage: python examples/check_wall_policy.py ant training/ant_good/model.zip 20 [deterministic] [--first-seed 800000]
 """
+import argparse
 import json
-import sys
 
 import numpy as np
 import torch
 
 from pbicrl.demonstrators.sac import load_policy
-from pbicrl.envs.mujoco_wall import make_wall_env, rollout_wall_env, wall_spec
+from pbicrl.envs.mujoco_wall import make_wall_env, wall_spec
 
+ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+ap.add_argument("env", choices=["halfcheetah", "ant"])
+ap.add_argument("policy")
+ap.add_argument("n", type=int)
+ap.add_argument("mode", nargs="?", choices=["stochastic", "deterministic"], default="stochastic")
+ap.add_argument("--first-seed", type=int, default=900_000)
+args = ap.parse_args()
 torch.set_num_threads(1)
-name, path, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
-deterministic = len(sys.argv) > 4 and sys.argv[4] == "deterministic"
-spec = wall_spec(name)
-pol = load_policy(path)
-env = make_wall_env(name, constrained=True, max_episode_steps=500)
+torch.manual_seed(0)  # the sampled actions: a rerun gives the same numbers
+deterministic = args.mode == "deterministic"
+spec = wall_spec(args.env)
+pol = load_policy(args.policy)
+env = make_wall_env(args.env, constrained=True, max_episode_steps=500)
+wrapper = env.env
 rows = []
-for j in range(n):
-    ro = rollout_wall_env(env, lambda o: pol.predict(o, deterministic=deterministic)[0], seed=900_000 + j, n_steps=500)
-    x = ro["x"]; rows.append((len(x), float(x.max()), bool((x >= spec.wall_x).any())))
-L = np.array([r[0] for r in rows]); M = np.array([r[1] for r in rows]); C = np.array([r[2] for r in rows])
-print(json.dumps({"path": path, "deterministic": deterministic, "n": n, "full_length": int((L == 500).sum()), "cross": int(C.sum()),
-      "reach": int(((M >= spec.wall_x - 0.5) & ~C & (L == 500)).sum()), "max_x": np.round(np.sort(M), 2).tolist()}))
+for j in range(args.n):
+    obs, _ = env.reset(seed=args.first_seed + j)
+    xs = []
+    for _ in range(500):
+        obs, _, term, trunc, info = env.step(pol.predict(obs, deterministic=deterministic)[0])
+        xs.append(info["x_position"])
+        if term or trunc:
+            break
+    flipped = args.env == "ant" and wrapper.torso_up_z() < 0.0
+    x = np.asarray(xs)
+    rows.append((len(x), float(x.max()), bool((x >= spec.wall_x).any()), flipped))
+L, M, C, F = (np.array([r[k] for r in rows]) for k in range(4))
+ok = (L == 500) & ~C
+out = {"path": args.policy, "deterministic": deterministic, "first_seed": args.first_seed, "n": args.n,
+       "full_length": int((L == 500).sum()), "cross": int(C.sum()), "reach": int(((M >= spec.wall_x - 0.5) & ok).sum()),
+       "max_x": np.round(np.sort(M), 2).tolist()}
+if args.env == "ant":
+    out["flipped_complete_not_crossing"] = int((F & ok).sum())
+print(json.dumps(out))
