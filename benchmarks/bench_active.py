@@ -40,6 +40,7 @@ import pbicrl
 from pbicrl.inference.data import Dataset
 from pbicrl.errors import PbicrlWarning
 from pbicrl.analysis.suggest import suggest
+from pbicrl.experiments.kinds import shipped_data_tag
 from pbicrl.inference.synthetic import make_problem
 
 HERE = Path(__file__).resolve().parent
@@ -62,12 +63,7 @@ def problem(name: str, seed: int) -> tuple[Dataset, np.ndarray]:
 def data_tag(name: str) -> str:
     """What a run's pool came from: ``synthetic`` (regenerated from the seed) or the shipped file, named by the
     first 12 hex digits of its SHA-256, so that runs on a regenerated file are not mixed with older ones."""
-    if name == "synthetic":
-        return "synthetic"
-    from pbicrl.experiments.kinds import file_sha256
-    from pbicrl.inference.data import resolve_dataset_path
-
-    return f"{name}-{file_sha256(resolve_dataset_path(name))[:12]}"
+    return "synthetic" if name == "synthetic" else shipped_data_tag(name)
 
 
 def current(rows: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], int]:

@@ -208,9 +208,9 @@ def test_close_loop_smoke(tmp_path):
     table = (tmp_path / "cl" / "table.md").read_text()
     assert table.count("\n") == 2 + 3 + 4
     assert close_loop(args) == 0  # everything cached: nothing retrained
-    from pbicrl.experiments.close_loop import _data_tag
+    from pbicrl.experiments.kinds import shipped_data_tag
 
-    tag = _data_tag("point_mass")
+    tag = shipped_data_tag("point_mass")
     assert res["envs"]["point_mass"]["posterior"]["data"] == tag
     assert (tmp_path / "cl" / "infer" / tag / "summary.json").is_file()
     assert (tmp_path / "cl" / "train" / "point_mass" / f"inferred-{tag}" / "seed0").is_dir()
@@ -220,9 +220,12 @@ def test_close_loop_smoke(tmp_path):
 def test_close_loop_names_data_dependent_stages_by_the_file_content():
     import hashlib
 
-    from pbicrl.experiments.close_loop import _data_tag
+    from pbicrl.experiments.close_loop import _stage
+    from pbicrl.experiments.kinds import shipped_data_tag
     from pbicrl.inference.data import resolve_dataset_path
 
     for name in ("point_mass", "halfcheetah"):
         sha = hashlib.sha256(resolve_dataset_path(name).read_bytes()).hexdigest()
-        assert _data_tag(name) == f"{name}-{sha[:12]}"
+        assert shipped_data_tag(name) == f"{name}-{sha[:12]}"
+    assert _stage("inferred-probability", "hc-1") == "inferred-probability-hc-1"
+    assert _stage("true", "hc-1") == "true" and _stage("nominal", "hc-1") == "nominal"

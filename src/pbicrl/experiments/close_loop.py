@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from pbicrl.cli.deprecated import moved_to_cli
+from pbicrl.experiments.kinds import shipped_data_tag
 
 __all__ = ["CloseLoopConfig", "EnvPlan", "default_config", "run"]
 
@@ -137,18 +138,15 @@ def _policy_cost(kind: str) -> tuple[str, str]:
     raise ValueError(f"policies: unknown policy kind {kind!r}; use nominal, true, inferred or inferred-<mode>")
 
 
-def _data_tag(env: str) -> str:
-    """``<env>-<first 12 hex digits of the shipped file's SHA-256>``: names every stage that depends on the data."""
-    from pbicrl.experiments.kinds import file_sha256
-    from pbicrl.inference.data import resolve_dataset_path
-
-    return f"{env}-{file_sha256(resolve_dataset_path(env))[:12]}"
+def _stage(kind: str, data_tag: str) -> str:
+    """Directory name of a policy kind: those trained on an inferred cost carry the data they were inferred from."""
+    return f"{kind}-{data_tag}" if _policy_cost(kind)[0] == "inferred" else kind
 
 
 def _infer(plan: EnvPlan, cfg: CloseLoopConfig, out: Path) -> Path:
     """The inference run of ``plan.env`` (cached per content of the shipped dataset: a regenerated file
     gets a new run, and the ``inferred`` policies trained on it with it)."""
-    run_dir = out / "infer" / _data_tag(plan.env)
+    run_dir = out / "infer" / shipped_data_tag(plan.env)
     if (run_dir / "summary.json").is_file():
         return run_dir
     from pbicrl.api import infer
@@ -202,8 +200,7 @@ def run(cfg: CloseLoopConfig, out: Path, docs: Path | None = None) -> dict[str, 
         for kind, cost, mode in kinds:
             per_seed = []
             for seed in plan.seeds:
-                # policies trained on an inferred cost are named by the data they were inferred from
-                stage = f"{kind}-{run_dir.name}" if cost == "inferred" else kind
+                stage = _stage(kind, run_dir.name)
                 d = out / "train" / plan.env / stage / f"seed{seed}"
                 t0 = time.time()
                 _log(f"{plan.env} {kind} seed {seed}: training {plan.steps} steps (resumes if interrupted)")
@@ -256,9 +253,8 @@ def run(cfg: CloseLoopConfig, out: Path, docs: Path | None = None) -> dict[str, 
         plot(results, fig_dir / "close_loop.png")
         pm = next((p for p in cfg.plans if p.env == "point_mass"), None)
         if pm is not None:
-            tag = _data_tag("point_mass")
-            paths = {k: _paths(load_policy(out / "train" / "point_mass" / (f"{k}-{tag}" if k.startswith("inferred")
-                                                                          else k) / f"seed{pm.seeds[0]}"), 20)
+            tag = shipped_data_tag("point_mass")
+            paths = {k: _paths(load_policy(out / "train" / "point_mass" / _stage(k, tag) / f"seed{pm.seeds[0]}"), 20)
                      for k in pm.policies}
             plot_paths(paths, fig_dir / "close_loop_point_mass_paths.png", seed=pm.seeds[0])
     print(table)

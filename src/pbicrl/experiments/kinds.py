@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 from pbicrl.experiments.registry import TaskError, in_task_worker, register_task, task_jobs
 
-__all__ = ["INFER_EXTRA", "file_sha256", "prepare_data", "prepare_infer", "run_infer", "summarize_infer",
+__all__ = ["INFER_EXTRA", "file_sha256", "shipped_data_tag", "prepare_data", "prepare_infer", "run_infer", "summarize_infer",
            "infer_result", "run_selftest", "infer_config_of_reproduce_run", "rename_v2"]
 
 
@@ -51,6 +51,17 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
                 h.update(block)
         _sha_cache[key] = h.hexdigest()
     return _sha_cache[key]
+
+
+def shipped_data_tag(name: str) -> str:
+    """``<name>-<first 12 hex digits of the dataset file's SHA-256>``, e.g. ``point_mass-51c6750fa6d9``.
+
+    Names cached results that depend on a shipped dataset, so that a regenerated file is never read through
+    results computed on an older one.
+    """
+    from pbicrl.inference.data import resolve_dataset_path
+
+    return f"{name}-{file_sha256(resolve_dataset_path(name))[:12]}"
 
 
 def prepare_data(config: dict, *, allow: tuple[str, ...] = ()) -> dict:
