@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from pbicrl.demonstrators.sac import load_policy
-from pbicrl.envs.mujoco_wall import make_wall_env, wall_spec
+from pbicrl.envs.mujoco_wall import make_wall_env, rollout_wall_env, wall_spec
 
 ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 ap.add_argument("env", choices=["halfcheetah", "ant"])
@@ -30,15 +30,10 @@ env = make_wall_env(args.env, constrained=True, max_episode_steps=500)
 wrapper = env.env
 rows = []
 for j in range(args.n):
-    obs, _ = env.reset(seed=args.first_seed + j)
-    xs = []
-    for _ in range(500):
-        obs, _, term, trunc, info = env.step(pol.predict(obs, deterministic=deterministic)[0])
-        xs.append(info["x_position"])
-        if term or trunc:
-            break
-    flipped = args.env == "ant" and wrapper.torso_up_z() < 0.0
-    x = np.asarray(xs)
+    ro = rollout_wall_env(env, lambda o: pol.predict(o, deterministic=deterministic)[0], seed=args.first_seed + j,
+                          n_steps=500)
+    x = ro["x"]
+    flipped = args.env == "ant" and wrapper.torso_up_z() < 0.0  # the env is left at the episode's last state
     rows.append((len(x), float(x.max()), bool((x >= spec.wall_x).any()), flipped))
 L, M, C, F = (np.array([r[k] for r in rows]) for k in range(4))
 ok = (L == 500) & ~C
