@@ -42,8 +42,17 @@ __all__ = ["DATA_DIR", "add_subcommands", "build_parser", "main", "shipped_polic
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 _ROLE = {"true": "good", "nominal": "violating"}
-# start distributions a --paper-protocol run may use (PointMassEnv / FetchReachConstrainedEnv ``start``)
-_STARTS = {"point_mass": ("random", "left", "bottom", "balanced"), "fetch_reach": ("wide", "equidistant", "balanced")}
+
+
+def _start_names(env: str) -> tuple[str, ...]:
+    """Start distributions a --paper-protocol run may use (PointMassEnv / FetchReachConstrainedEnv ``start``)."""
+    if env == "point_mass":
+        from pbicrl.envs.point_mass import START_STRIPS
+
+        return tuple(START_STRIPS)
+    from pbicrl.envs.fetch_reach import START_BOXES
+
+    return tuple(START_BOXES)
 
 
 def shipped_policy(env: str, role: str) -> Path:
@@ -114,9 +123,9 @@ def _cmd_demos(args: argparse.Namespace) -> int:
             if value is not None:
                 print(f"error: {flag}: only with --paper-protocol", file=sys.stderr)
                 return 2
-    if args.start is not None and args.start not in _STARTS[args.env]:
-        print(f"error: --start: expected one of {', '.join(_STARTS[args.env])} for {args.env}, got {args.start!r}",
-              file=sys.stderr)
+    if args.start is not None and args.start not in _start_names(args.env):
+        print(f"error: --start: expected one of {', '.join(_start_names(args.env))} for {args.env}, got "
+              f"{args.start!r}", file=sys.stderr)
         return 2
     good = None if args.g1_from_violating else (args.good_policy or shipped_policy(args.env, "good"))
     bad = args.violating_policy or shipped_policy(args.env, "violating")
