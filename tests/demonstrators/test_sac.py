@@ -209,3 +209,52 @@ def test_checkpoint_swap_is_atomic_follows_the_umask_and_a_killed_swap_is_undone
     assert _find_checkpoint(out) == out / "checkpoint.old"
     _save_checkpoint(Model(3), out, {"num_timesteps": 300})
     assert sorted(p.name for p in out.iterdir()) == ["checkpoint"]
+
+
+def test_prefill_fills_the_warm_start_buffer_with_the_loaded_policy_before_training(tmp_path):
+    src = tmp_path / "src"
+    train_sac(_pendulum, 150, src, seed=4, **TINY)
+    from stable_baselines3 import SAC
+
+    dst = tmp_path / "dst"
+    # no gradient step (learning_starts > steps): the buffer holds the prefill, then the run's own steps
+    train_sac(_pendulum, 50, dst, seed=5, init_from=src / "final_model.zip", prefill_steps=240,
+              target_entropy=-3.0, **{**TINY, "learning_starts": 1000})
+    model = SAC.load(dst / "checkpoint" / "model.zip")
+    model.load_replay_buffer(dst / "checkpoint" / "replay_buffer.pkl")
+    assert model.replay_buffer.size() == 240 + 50
+    # pendulum episodes here last 100 steps: the prefill crossed two time limits, stored as truncations
+    dones = model.replay_buffer.dones[:240, 0]
+    assert np.flatnonzero(dones).tolist() == [99, 199]
+    assert model.replay_buffer.timeouts[:240, 0].sum() == 2
+    # stored actions are in the policy's scaled space [-1, 1] (Pendulum acts in [-2, 2])
+    acts = model.replay_buffer.actions[:240, 0, 0]
+    assert np.abs(acts).max() <= 1.0 and np.abs(acts).max() > 0.5
+    budget = json.loads((dst / "budget.json").read_text())
+    assert budget["done_steps"] == 50  # the prefill is not counted as training steps
+    assert budget["hyperparameters"]["prefill_steps"] == 240
+    assert budget["hyperparameters"]["target_entropy"] == -3.0 and model.target_entropy == -3.0
+    assert "prefilled with 240 steps" in (dst / "progress.log").read_text()
+
+
+@pytest.mark.parametrize("kw, match", [({"prefill_steps": 10}, "prefill_steps: needs init_from"),
+                                       ({"prefill_steps": -1}, "prefill_steps"),
+                                       ({"target_entropy": float("nan")}, "target_entropy")])
+def test_prefill_and_target_entropy_are_validated(tmp_path, kw, match):
+    with pytest.raises(ValueError, match=match):
+        train_sac(_pendulum, 10, tmp_path / "r", **{**TINY, **kw})
+    assert not (tmp_path / "r").exists()
+
+
+def test_cli_parses_the_training_only_options():
+    from pbicrl.cli.wall import build_parser
+
+    base = ["train-wall", "--env", "ant", "--mode", "good", "--steps", "100", "--out", "x"]
+    args = build_parser().parse_args(base)
+    assert (args.reach_bonus, args.prefill_steps, args.target_entropy) == (0.0, 0, "auto")
+    args = build_parser().parse_args(base + ["--reach-bonus", "3", "--prefill-steps", "50000",
+                                             "--target-entropy", "-16"])
+    assert (args.reach_bonus, args.prefill_steps, args.target_entropy) == (3.0, 50000, -16.0)
+    for bad in ("high", "nan"):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(base + ["--target-entropy", bad])

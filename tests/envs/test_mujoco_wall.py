@@ -113,6 +113,28 @@ def test_ant_alive_bonus_and_penalty():
     env.close()
 
 
+def test_reach_bonus_pays_only_in_the_half_metre_before_the_wall():
+    env = make_wall_env("ant", constrained=True, max_episode_steps=20, position_bonus=1.0, reach_bonus=3.0)
+    env.reset(seed=1)
+    for x, bonus in ((9.2, 0.0), (9.7, 3.0), (10.3, 0.0)):
+        _teleport_x(env, x)
+        _, r, _, _, info = env.step(np.zeros(8))
+        xa = info["x_position"]
+        assert (9.5 <= xa < 10.0) is (bonus > 0)
+        expected = 20 * info["features"][0] + 1.0 + min(xa, 10.0) + bonus + (-100.0 if xa >= 10 else 0.0)
+        assert r == pytest.approx(expected)
+    env.close()
+    # the violating demonstrator's reward never carries it; a negative bonus is refused
+    env = make_wall_env("ant", constrained=False, max_episode_steps=20, reach_bonus=3.0)
+    env.reset(seed=1)
+    _teleport_x(env, 9.7)
+    _, r, _, _, info = env.step(np.zeros(8))
+    assert r == pytest.approx(20 * info["features"][0] + 1.0)
+    env.close()
+    with pytest.raises(ValueError, match="reach_bonus"):
+        make_wall_env("ant", constrained=True, reach_bonus=-1.0)
+
+
 def test_rollout_shapes_and_time_limit():
     env = make_wall_env("halfcheetah", constrained=False, max_episode_steps=30)
     rng = np.random.default_rng(0)

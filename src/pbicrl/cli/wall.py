@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from pbicrl.cli.argtypes import _number, nonneg_int
 from pbicrl.cli.argtypes import positive_int as _positive_int
 
 __all__ = ["add_subcommands", "build_parser", "main"]
@@ -54,6 +56,12 @@ def _ent_coef(text: str) -> float | str:
     return value
 
 
+def _target_entropy(text: str) -> float | str:
+    if text == "auto":
+        return text
+    return _number(text, float, math.isfinite, "auto or a finite number")
+
+
 def _cmd_train_wall(args: argparse.Namespace) -> int:
     from pbicrl.demonstrators.wall import train_wall_policy
 
@@ -63,7 +71,8 @@ def _cmd_train_wall(args: argparse.Namespace) -> int:
               "log_every": args.log_every, "torch_threads": args.torch_threads,
               "init_from": args.init_from, "progress": not args.quiet, "deadline": args.deadline,
               "ent_coef": args.ent_coef, "position_bonus": args.position_bonus,
-              "terminate_when_flipped": args.terminate_when_flipped}
+              "terminate_when_flipped": args.terminate_when_flipped, "reach_bonus": args.reach_bonus,
+              "prefill_steps": args.prefill_steps, "target_entropy": args.target_entropy}
     try:
         path = train_wall_policy(args.env, args.mode, args.steps, args.out, **kwargs)
     except KeyboardInterrupt as exc:
@@ -123,6 +132,14 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
                    help="SAC entropy coefficient: auto, auto_<initial> (e.g. auto_0.05) or a number")
     p.add_argument("--position-bonus", type=float, default=0.0,
                    help="training-only shaping of the good demonstrator: + B * min(x, wall) per step (0: paper)")
+    p.add_argument("--target-entropy", type=_target_entropy, default="auto",
+                   help="entropy the SAC temperature aims at: auto (-dim(action)) or a number; lower: less noisy")
+    p.add_argument("--reach-bonus", type=float, default=0.0,
+                   help="training-only shaping of the good demonstrator: + B per step with x in [wall - 0.5, wall) "
+                        "(0: paper)")
+    p.add_argument("--prefill-steps", type=nonneg_int, default=0,
+                   help="warm start only: fill the fresh replay buffer with this many steps of the loaded policy "
+                        "(sampled actions) before the first gradient step")
     p.add_argument("--terminate-when-flipped", action="store_true",
                    help="training-only (ant): end an episode when the torso turns upside down, as a fall does")
     p.add_argument("--deadline", type=_utc_time, default=None,

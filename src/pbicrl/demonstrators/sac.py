@@ -132,6 +132,36 @@ def load_policy(path: str | os.PathLike, device: str = "cpu") -> Any:
     return policy
 
 
+def _prefill_replay_buffer(model: Any, env_fn: Callable[[], Any], n_steps: int, seed: int) -> int:
+    """Add ``n_steps`` transitions of ``model``'s own policy (sampled actions) to its replay buffer.
+
+    Returns the number of episodes that ended. Runs in a separate environment so that the
+    training env's episode statistics start clean.
+    """
+    import numpy as np
+
+    env = env_fn()
+    try:
+        obs, _ = env.reset(seed=seed)
+        ended = 0
+        for _ in range(n_steps):
+            action, _ = model.predict(obs, deterministic=False)
+            next_obs, reward, terminated, truncated, _ = env.step(action)
+            done = bool(terminated or truncated)
+            # SB3 stores actions scaled to [-1, 1] and bootstraps through time-limit truncations
+            model.replay_buffer.add(np.asarray(obs)[None], np.asarray(next_obs)[None],
+                                    np.asarray(model.policy.scale_action(action))[None],
+                                    np.array([reward], dtype=np.float32), np.array([done]),
+                                    [{"TimeLimit.truncated": bool(truncated and not terminated)}])
+            obs = next_obs
+            if done:
+                ended += 1
+                obs, _ = env.reset()
+    finally:
+        env.close()
+    return ended
+
+
 def train_sac(
     env_fn: Callable[[], Any],
     total_steps: int,
@@ -157,6 +187,8 @@ def train_sac(
     ent_coef: float | str = "auto",
     replay_buffer_kwargs: dict[str, Any] | None = None,
     deadline: float | None = None,
+    prefill_steps: int = 0,
+    target_entropy: float | str = "auto",
 ) -> Path:
     """Train (or resume training of) a SAC agent; return the path of ``policy.zip``.
 
@@ -201,6 +233,17 @@ def train_sac(
         Unix time (``time.time()``) at which to stop early and finalise the policy with
         the steps done so far (``budget.json`` status ``"deadline"``): a wall-clock budget
         for shared machines. A later call (larger ``total_steps`` or later deadline) resumes.
+    prefill_steps : int
+        Warm starts only (``init_from``): before the first gradient step, fill the fresh replay
+        buffer with this many transitions of the loaded policy itself (sampled actions). A warm
+        start whose buffer holds only ``learning_starts`` uniformly random steps trains its
+        critics on a few thousand transitions and loses most of what the policy could do;
+        with the policy's own experience it starts from a buffer like the one it left.
+        Not counted in ``total_steps``; ignored when resuming (the buffer is restored).
+    target_entropy : float or "auto"
+        Entropy the automatic temperature steers the policy towards (``"auto"``: SB3's
+        ``-dim(action)``). Lower values give a less noisy sampled policy. Applies to new runs and
+        warm starts; a resumed checkpoint keeps its own.
 
     Returns
     -------
@@ -222,13 +265,19 @@ def train_sac(
                             ("buffer_size", buffer_size, 1), ("learning_starts", learning_starts, 0),
                             ("checkpoint_every", checkpoint_every, 1), ("log_every", log_every, 1),
                             ("torch_threads", torch_threads, 1), ("train_freq", train_freq, 1),
-                            ("gradient_steps", gradient_steps, 1)):
+                            ("gradient_steps", gradient_steps, 1), ("prefill_steps", prefill_steps, 0)):
         if int(value) != value or int(value) < lo:
             raise ValueError(f"{name}: must be an integer >= {lo}, got {value!r}")
     if deadline is not None and not _is_finite(deadline):
         raise ValueError(f"deadline: must be a finite unix time, got {deadline!r}")
     if not (learning_rate > 0):
         raise ValueError(f"learning_rate: must be > 0, got {learning_rate!r}")
+    if target_entropy != "auto" and not _is_finite(target_entropy):
+        raise ValueError(f"target_entropy: must be 'auto' or a finite number, got {target_entropy!r}")
+    if prefill_steps and init_from is None:
+        raise ValueError("prefill_steps: needs init_from (a new run starts with learning_starts random steps)")
+    if prefill_steps > buffer_size:
+        raise ValueError(f"prefill_steps: must be <= buffer_size ({buffer_size}), got {prefill_steps}")
     net_arch = [int(h) for h in net_arch]
     if not net_arch or min(net_arch) < 1:
         raise ValueError(f"net_arch: must be a non-empty list of positive layer sizes, got {net_arch!r}")
@@ -243,7 +292,7 @@ def train_sac(
                       buffer_size=buffer_size, learning_starts=learning_starts, gamma=gamma, tau=tau,
                       train_freq=train_freq, gradient_steps=gradient_steps, seed=seed,
                       torch_threads=torch_threads, ent_coef=ent_coef, replay_buffer_kwargs=replay_buffer_kwargs,
-                      init_from=None if init_from is None else str(init_from),
+                      init_from=None if init_from is None else str(init_from), prefill_steps=int(prefill_steps),
                       policy_kwargs=None if not policy_kwargs else {k: repr(v) for k, v in policy_kwargs.items()})
 
     log = progress_logger(log_path, echo=progress)
@@ -269,13 +318,16 @@ def train_sac(
                       "batch_size": batch_size, "buffer_size": buffer_size,
                       "learning_starts": learning_starts, "gamma": gamma, "tau": tau,
                       "train_freq": train_freq, "gradient_steps": gradient_steps}
+            if target_entropy != "auto":
+                custom["target_entropy"] = float(target_entropy)
             if _is_policy_only(init_path):
                 # a shipped ``policy.zip`` (networks only): fresh SAC, then copy actor and critics in
                 from stable_baselines3.sac.policies import SACPolicy
 
                 model = SAC("MlpPolicy", env, learning_rate=learning_rate, buffer_size=buffer_size,
                             ent_coef=ent_coef, replay_buffer_kwargs=replay_buffer_kwargs,
-                            learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
+                            target_entropy=target_entropy, learning_starts=learning_starts,
+                            batch_size=batch_size, tau=tau, gamma=gamma,
                             train_freq=train_freq, gradient_steps=gradient_steps,
                             policy_kwargs={**(policy_kwargs or {}), "net_arch": net_arch}, seed=seed,
                             device="cpu", verbose=0)
@@ -291,9 +343,14 @@ def train_sac(
             model.ep_info_buffer = None  # report only this run's episodes
             model.ep_success_buffer = None
             log(f"new run warm-started from {init_path}")
+            if prefill_steps:
+                t0 = time.time()
+                ended = _prefill_replay_buffer(model, env_fn, int(prefill_steps), seed + 500)
+                log(f"replay buffer prefilled with {prefill_steps} steps of the loaded policy "
+                    f"({ended} episodes ended, {time.time() - t0:.0f} s)")
         else:
             model = SAC("MlpPolicy", env, learning_rate=learning_rate, buffer_size=buffer_size, ent_coef=ent_coef,
-                        replay_buffer_kwargs=replay_buffer_kwargs,
+                        replay_buffer_kwargs=replay_buffer_kwargs, target_entropy=target_entropy,
                         learning_starts=learning_starts, batch_size=batch_size, tau=tau, gamma=gamma,
                         train_freq=train_freq, gradient_steps=gradient_steps,
                         policy_kwargs={**(policy_kwargs or {}), "net_arch": net_arch}, seed=seed,
@@ -303,7 +360,8 @@ def train_sac(
     # its own settings, whatever was passed to this call
     hyper.update(tau=float(model.tau), gamma=float(model.gamma), batch_size=int(model.batch_size),
                  buffer_size=int(model.buffer_size), learning_starts=int(model.learning_starts),
-                 ent_coef=model.ent_coef if isinstance(model.ent_coef, str) else float(model.ent_coef))
+                 ent_coef=model.ent_coef if isinstance(model.ent_coef, str) else float(model.ent_coef),
+                 target_entropy=float(model.target_entropy))
     session_idx = len(sessions)
     model.set_random_seed(seed + 1000 * session_idx)
     env.reset(seed=seed + 1000 * session_idx)

@@ -41,22 +41,24 @@ class _EnvFactory:
     """Picklable zero-argument env factory."""
 
     def __init__(self, name: str, constrained: bool, max_episode_steps: int, position_bonus: float = 0.0,
-                 terminate_when_flipped: bool = False) -> None:
+                 terminate_when_flipped: bool = False, reach_bonus: float = 0.0) -> None:
         self.name, self.constrained, self.max_episode_steps = name, constrained, max_episode_steps
         self.position_bonus = position_bonus
+        self.reach_bonus = reach_bonus
         self.terminate_when_flipped = terminate_when_flipped
 
     def __call__(self):
         from pbicrl.envs.mujoco_wall import make_wall_env
 
         return make_wall_env(self.name, constrained=self.constrained, max_episode_steps=self.max_episode_steps,
-                             position_bonus=self.position_bonus,
+                             position_bonus=self.position_bonus, reach_bonus=self.reach_bonus,
                              terminate_when_flipped=self.terminate_when_flipped)
 
 
 def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.PathLike, *,
                       seed: int = 0, max_episode_steps: int = 500, position_bonus: float = 0.0,
-                      terminate_when_flipped: bool = False, **sac_kwargs: Any) -> Path:
+                      terminate_when_flipped: bool = False, reach_bonus: float = 0.0,
+                      **sac_kwargs: Any) -> Path:
     """Train the good or violating demonstrator of a wall environment with :func:`train_sac`.
 
     Parameters
@@ -75,6 +77,9 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
     terminate_when_flipped : bool
         Training-only: end an episode when the torso turns upside down (Ant only), as a fall
         ends it; False is the paper's (Gymnasium's) termination.
+    reach_bonus : float
+        Training-only shaping for ``mode="good"``: ``reach_bonus`` per step with x in
+        ``[wall - 0.5, wall)``; 0 is the paper's reward.
     **sac_kwargs
         Passed to :func:`pbicrl.demonstrators.sac.train_sac`.
 
@@ -84,14 +89,15 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
         Path of the trained ``policy.zip``.
     """
     from pbicrl.demonstrators.sac import train_sac
-    from pbicrl.envs.mujoco_wall import WALL_SPECS, wall_spec
+    from pbicrl.envs.mujoco_wall import REACH_MARGIN, WALL_SPECS, wall_spec
 
     constrained = _check_mode(mode)
     spec = wall_spec(name)
-    if not (np.isfinite(position_bonus) and position_bonus >= 0):
-        raise ValueError(f"position_bonus: must be a finite value >= 0, got {position_bonus!r}")
-    if position_bonus and not constrained:
-        raise ValueError("position_bonus: only applies to mode='good' (the constrained reward)")
+    for opt, value in (("position_bonus", position_bonus), ("reach_bonus", reach_bonus)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{opt}: must be a finite value >= 0, got {value!r}")
+        if value and not constrained:
+            raise ValueError(f"{opt}: only applies to mode='good' (the constrained reward)")
     if terminate_when_flipped and name.lower() != "ant":
         raise ValueError(f"terminate_when_flipped: only applies to env 'ant', got {name!r}")
     meta = {"env": name, "base_env_id": spec.env_id, "mode": mode, "constrained_reward": constrained,
@@ -99,11 +105,14 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
             "make_kwargs": spec.make_kwargs, "max_episode_steps": max_episode_steps,
             "reward": "20*dx - 0.1*|a|^2" + (" + alive_bonus" if spec.alive_bonus else "")
                       + (f" + {spec.penalty} * [x >= {spec.wall_x}]" if constrained else "")
-                      + (f" + {position_bonus} * min(x, {spec.wall_x})" if position_bonus else ""),
-            "position_bonus": float(position_bonus), "terminate_when_flipped": bool(terminate_when_flipped)}
+                      + (f" + {position_bonus} * min(x, {spec.wall_x})" if position_bonus else "")
+                      + (f" + {reach_bonus} * [{spec.wall_x - REACH_MARGIN} <= x < {spec.wall_x}]"
+                         if reach_bonus else ""),
+            "position_bonus": float(position_bonus), "reach_bonus": float(reach_bonus),
+            "terminate_when_flipped": bool(terminate_when_flipped)}
     assert name.lower() in WALL_SPECS
     factory = _EnvFactory(name.lower(), constrained, max_episode_steps, float(position_bonus),
-                          bool(terminate_when_flipped))
+                          bool(terminate_when_flipped), float(reach_bonus))
     return train_sac(factory, total_steps, out_dir,
                      seed=seed, metadata=meta, **sac_kwargs)
 

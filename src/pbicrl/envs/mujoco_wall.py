@@ -55,6 +55,7 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
 __all__ = [
     "FEATURE_NAMES",
     "NOMINAL_WEIGHTS",
+    "REACH_MARGIN",
     "WALL_SPECS",
     "WallPenaltyWrapper",
     "WallSpec",
@@ -65,6 +66,8 @@ __all__ = [
 
 FEATURE_NAMES: tuple[str, str] = ("forward_displacement", "action_sq_norm")
 NOMINAL_WEIGHTS: tuple[float, float] = (20.0, -0.1)
+#: A good demonstration "reaches the wall" when its furthest x is within this distance of it (issue 13's target).
+REACH_MARGIN: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -140,6 +143,12 @@ class WallPenaltyWrapper(gym.Wrapper):
         for the rest of the episode (with ``20 * dx`` alone, the return only depends on the
         final x and an exploring policy learns to stop early). 0 (default) is the paper's reward.
         The features (and so the demonstrations' data) do not depend on it.
+    reach_bonus : float
+        Training-only shaping of the good demonstrator (``constrained`` mode only): adds
+        ``reach_bonus`` per step whose reached x lies in ``[wall_x - REACH_MARGIN, wall_x)``,
+        the band just short of the wall. With the linear position bonus alone the last half
+        metre pays little against the risk of a crossing, and the policy stands still short of
+        it. 0 (default) is the paper's reward; the features do not depend on it.
     terminate_when_flipped : bool
         Training-only: end the episode (as Gymnasium ends it on a fall) when the torso turns
         upside down, i.e. the z-component of its up axis drops below 0. Gymnasium's Ant
@@ -157,11 +166,12 @@ class WallPenaltyWrapper(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, wall_x: float, penalty: float, *, constrained: bool,
-                 alive_bonus: float = 0.0, position_bonus: float = 0.0,
+                 alive_bonus: float = 0.0, position_bonus: float = 0.0, reach_bonus: float = 0.0,
                  terminate_when_flipped: bool = False, nominal_weights=NOMINAL_WEIGHTS) -> None:
         super().__init__(env)
-        if not (np.isfinite(position_bonus) and position_bonus >= 0):
-            raise ValueError(f"position_bonus: must be a finite value >= 0, got {position_bonus}")
+        for name, value in (("position_bonus", position_bonus), ("reach_bonus", reach_bonus)):
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: must be a finite value >= 0, got {value}")
         if not np.isfinite(wall_x):
             raise ValueError(f"wall_x: must be finite, got {wall_x}")
         if not (np.isfinite(penalty) and penalty <= 0):
@@ -174,6 +184,7 @@ class WallPenaltyWrapper(gym.Wrapper):
         self.constrained = bool(constrained)
         self.alive_bonus = float(alive_bonus)
         self.position_bonus = float(position_bonus)
+        self.reach_bonus = float(reach_bonus)
         self.terminate_when_flipped = bool(terminate_when_flipped)
         # a free joint (MuJoCo type 0) first: qpos[3:7] is then the torso's quaternion
         self._free_torso = int(self.env.unwrapped.model.jnt_type[0]) == 0
@@ -219,6 +230,8 @@ class WallPenaltyWrapper(gym.Wrapper):
             reward += self.alive_bonus
         if self.constrained and self.position_bonus:
             reward += self.position_bonus * min(x_after, self.wall_x)
+        if self.constrained and self.reach_bonus and self.wall_x - REACH_MARGIN <= x_after < self.wall_x:
+            reward += self.reach_bonus
         info = dict(info)
         info.update(features=phi, x_position=x_after, x_position_before=x_before, in_wall=bool(in_wall),
                     wall_penalty=pen, nominal_reward=nominal, base_reward=float(base_reward), flipped=flipped)
@@ -226,7 +239,7 @@ class WallPenaltyWrapper(gym.Wrapper):
 
 
 def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
-                  render_mode: str | None = None, position_bonus: float = 0.0,
+                  render_mode: str | None = None, position_bonus: float = 0.0, reach_bonus: float = 0.0,
                   terminate_when_flipped: bool = False, **overrides: Any) -> gym.Env:
     """Create a wall environment.
 
@@ -242,6 +255,8 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
         Passed to :func:`gymnasium.make`.
     position_bonus : float
         Training-only shaping of the good demonstrator, see :class:`WallPenaltyWrapper`.
+    reach_bonus : float
+        Training-only: a bonus per step just short of the wall, see :class:`WallPenaltyWrapper`.
     terminate_when_flipped : bool
         Training-only: end the episode when the torso is upside down (Ant), see
         :class:`WallPenaltyWrapper`.
@@ -264,6 +279,7 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
     base = gym.make(spec.env_id, render_mode=render_mode, max_episode_steps=10**9, **kwargs)
     env = WallPenaltyWrapper(base, spec.wall_x, spec.penalty, constrained=constrained,
                              alive_bonus=spec.alive_bonus, position_bonus=position_bonus,
+                             reach_bonus=reach_bonus,
                              terminate_when_flipped=terminate_when_flipped)
     return gym.wrappers.TimeLimit(env, max_episode_steps=int(max_episode_steps))
 
