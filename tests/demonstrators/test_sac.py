@@ -251,10 +251,10 @@ def test_cli_parses_the_training_only_options():
 
     base = ["train-wall", "--env", "ant", "--mode", "good", "--steps", "100", "--out", "x"]
     args = build_parser().parse_args(base)
-    assert (args.reach_bonus, args.prefill_steps, args.target_entropy) == (0.0, 0, "auto")
+    assert (args.reach_bonus, args.prefill_steps, args.target_entropy, args.start_spread) == (0.0, 0, "auto", 0.0)
     args = build_parser().parse_args(base + ["--reach-bonus", "3", "--prefill-steps", "50000",
-                                             "--target-entropy", "-16"])
-    assert (args.reach_bonus, args.prefill_steps, args.target_entropy) == (3.0, 50000, -16.0)
+                                             "--target-entropy", "-16", "--start-spread", "9"])
+    assert (args.reach_bonus, args.prefill_steps, args.target_entropy, args.start_spread) == (3.0, 50000, -16.0, 9.0)
     for bad in ("high", "nan"):
         with pytest.raises(SystemExit):
             build_parser().parse_args(base + ["--target-entropy", bad])

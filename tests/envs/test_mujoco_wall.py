@@ -135,6 +135,26 @@ def test_reach_bonus_pays_only_in_the_half_metre_before_the_wall():
         make_wall_env("ant", constrained=True, reach_bonus=-1.0)
 
 
+def test_start_spread_moves_seeded_starts_forward_and_the_observation_with_them():
+    plain = make_wall_env("ant", constrained=True, max_episode_steps=20)
+    spread = make_wall_env("ant", constrained=True, max_episode_steps=20, start_spread=9.0)
+    shifts = []
+    for seed in range(8):
+        _, info0 = plain.reset(seed=seed)
+        obs, info = spread.reset(seed=seed)
+        shifts.append(info["x_position"] - info0["x_position"])
+        assert obs[0] == info["x_position"]  # the policy observes where it starts
+        _, _, _, _, step = spread.step(np.zeros(8))
+        assert step["x_position_before"] == info["x_position"]  # the first displacement starts there too
+        assert abs(step["features"][0]) < 0.05
+    assert 0.0 <= min(shifts) and max(shifts) <= 9.0 and max(shifts) - min(shifts) > 3.0
+    assert spread.reset(seed=3)[1]["x_position"] - plain.reset(seed=3)[1]["x_position"] == shifts[3]  # seeded
+    plain.close()
+    spread.close()
+    with pytest.raises(ValueError, match="start_spread"):
+        make_wall_env("ant", constrained=True, start_spread=float("nan"))
+
+
 def test_rollout_shapes_and_time_limit():
     env = make_wall_env("halfcheetah", constrained=False, max_episode_steps=30)
     rng = np.random.default_rng(0)

@@ -72,7 +72,7 @@ def test_shipped_policies_keep_their_side_of_the_wall(name):
         crossed = np.array(furthest) >= wall
         if mode == "good":
             # the Ant good policy crosses in 7.6% of its rollouts (docs/wall_demonstrations.md; seed 12345 is one)
-            assert crossed.sum() <= 1, f"{name} good policy crossed the wall in {crossed.sum()} of 4 rollouts: {furthest}"
+            assert crossed.sum() <= 1, f"{name} good policy crossed the wall in {crossed.sum()} of 4: {furthest}"
         else:
             assert crossed[complete].all(), f"{name} violating policy: a complete rollout stayed below: {furthest}"
 
@@ -145,8 +145,9 @@ def test_generate_demos_labels_and_rejects(tmp_path):
     with pytest.raises(ValueError, match="terminate_when_flipped: only applies to env 'ant'"):
         train_wall_policy("halfcheetah", "good", 10, tmp_path / "r", terminate_when_flipped=True)
     assert not (tmp_path / "r").exists()  # refused before anything was written
-    with pytest.raises(ValueError, match="reach_bonus: only applies to mode='good'"):
-        train_wall_policy("ant", "violating", 10, tmp_path / "s", reach_bonus=1.0)
+    for opt in ("reach_bonus", "start_spread"):
+        with pytest.raises(ValueError, match=f"{opt}: only applies to mode='good'"):
+            train_wall_policy("ant", "violating", 10, tmp_path / "s", **{opt: 1.0})
     assert not (tmp_path / "s").exists()
 
 

@@ -72,6 +72,7 @@ def _cmd_train_wall(args: argparse.Namespace) -> int:
               "init_from": args.init_from, "progress": not args.quiet, "deadline": args.deadline,
               "ent_coef": args.ent_coef, "position_bonus": args.position_bonus,
               "terminate_when_flipped": args.terminate_when_flipped, "reach_bonus": args.reach_bonus,
+              "start_spread": args.start_spread,
               "prefill_steps": args.prefill_steps, "target_entropy": args.target_entropy}
     try:
         path = train_wall_policy(args.env, args.mode, args.steps, args.out, **kwargs)
@@ -137,6 +138,9 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--reach-bonus", type=float, default=0.0,
                    help="training-only shaping of the good demonstrator: + B per step with x in [wall - 0.5, wall) "
                         "(0: paper)")
+    p.add_argument("--start-spread", type=float, default=0.0,
+                   help="training-only exploring starts of the good demonstrator: each episode starts up to this "
+                        "far ahead of Gymnasium's start (uniform; 0: paper)")
     p.add_argument("--prefill-steps", type=nonneg_int, default=0,
                    help="warm start only: fill the fresh replay buffer with this many steps of the loaded policy "
                         "(sampled actions) before the first gradient step")

@@ -41,10 +41,11 @@ class _EnvFactory:
     """Picklable zero-argument env factory."""
 
     def __init__(self, name: str, constrained: bool, max_episode_steps: int, position_bonus: float = 0.0,
-                 terminate_when_flipped: bool = False, reach_bonus: float = 0.0) -> None:
+                 terminate_when_flipped: bool = False, reach_bonus: float = 0.0, start_spread: float = 0.0) -> None:
         self.name, self.constrained, self.max_episode_steps = name, constrained, max_episode_steps
         self.position_bonus = position_bonus
         self.reach_bonus = reach_bonus
+        self.start_spread = start_spread
         self.terminate_when_flipped = terminate_when_flipped
 
     def __call__(self):
@@ -52,13 +53,14 @@ class _EnvFactory:
 
         return make_wall_env(self.name, constrained=self.constrained, max_episode_steps=self.max_episode_steps,
                              position_bonus=self.position_bonus, reach_bonus=self.reach_bonus,
+                             start_spread=self.start_spread,
                              terminate_when_flipped=self.terminate_when_flipped)
 
 
 def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.PathLike, *,
                       seed: int = 0, max_episode_steps: int = 500, position_bonus: float = 0.0,
                       terminate_when_flipped: bool = False, reach_bonus: float = 0.0,
-                      **sac_kwargs: Any) -> Path:
+                      start_spread: float = 0.0, **sac_kwargs: Any) -> Path:
     """Train the good or violating demonstrator of a wall environment with :func:`train_sac`.
 
     Parameters
@@ -80,6 +82,9 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
     reach_bonus : float
         Training-only shaping for ``mode="good"``: ``reach_bonus`` per step with x in
         ``[wall - 0.5, wall)``; 0 is the paper's reward.
+    start_spread : float
+        Training-only exploring starts: each training episode starts a uniform draw from
+        ``[0, start_spread]`` further forward; 0 is Gymnasium's start (the demonstrations').
     **sac_kwargs
         Passed to :func:`pbicrl.demonstrators.sac.train_sac`.
 
@@ -93,7 +98,8 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
 
     constrained = _check_mode(mode)
     spec = wall_spec(name)
-    for opt, value in (("position_bonus", position_bonus), ("reach_bonus", reach_bonus)):
+    for opt, value in (("position_bonus", position_bonus), ("reach_bonus", reach_bonus),
+                       ("start_spread", start_spread)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{opt}: must be a finite value >= 0, got {value!r}")
         if value and not constrained:
@@ -109,10 +115,11 @@ def train_wall_policy(name: str, mode: str, total_steps: int, out_dir: str | os.
                       + (f" + {reach_bonus} * [{spec.wall_x - REACH_MARGIN} <= x < {spec.wall_x}]"
                          if reach_bonus else ""),
             "position_bonus": float(position_bonus), "reach_bonus": float(reach_bonus),
+            "start_spread": float(start_spread),
             "terminate_when_flipped": bool(terminate_when_flipped)}
     assert name.lower() in WALL_SPECS
     factory = _EnvFactory(name.lower(), constrained, max_episode_steps, float(position_bonus),
-                          bool(terminate_when_flipped), float(reach_bonus))
+                          bool(terminate_when_flipped), float(reach_bonus), float(start_spread))
     return train_sac(factory, total_steps, out_dir,
                      seed=seed, metadata=meta, **sac_kwargs)
 

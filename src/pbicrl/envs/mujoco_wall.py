@@ -149,6 +149,12 @@ class WallPenaltyWrapper(gym.Wrapper):
         the band just short of the wall. With the linear position bonus alone the last half
         metre pays little against the risk of a crossing, and the policy stands still short of
         it. 0 (default) is the paper's reward; the features do not depend on it.
+    start_spread : float
+        Training-only ("exploring starts"): each reset moves the robot forward by a uniform
+        draw from ``[0, start_spread]`` (the environment's own generator, so seeded resets
+        repeat), so that every stretch of the track, the last metre before the wall included,
+        is practised from a fresh start. 0 (default): Gymnasium's start near x = 0, as the
+        demonstrations use.
     terminate_when_flipped : bool
         Training-only: end the episode (as Gymnasium ends it on a fall) when the torso turns
         upside down, i.e. the z-component of its up axis drops below 0. Gymnasium's Ant
@@ -167,9 +173,11 @@ class WallPenaltyWrapper(gym.Wrapper):
 
     def __init__(self, env: gym.Env, wall_x: float, penalty: float, *, constrained: bool,
                  alive_bonus: float = 0.0, position_bonus: float = 0.0, reach_bonus: float = 0.0,
-                 terminate_when_flipped: bool = False, nominal_weights=NOMINAL_WEIGHTS) -> None:
+                 start_spread: float = 0.0, terminate_when_flipped: bool = False,
+                 nominal_weights=NOMINAL_WEIGHTS) -> None:
         super().__init__(env)
-        for name, value in (("position_bonus", position_bonus), ("reach_bonus", reach_bonus)):
+        for name, value in (("position_bonus", position_bonus), ("reach_bonus", reach_bonus),
+                            ("start_spread", start_spread)):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: must be a finite value >= 0, got {value}")
         if not np.isfinite(wall_x):
@@ -185,6 +193,7 @@ class WallPenaltyWrapper(gym.Wrapper):
         self.alive_bonus = float(alive_bonus)
         self.position_bonus = float(position_bonus)
         self.reach_bonus = float(reach_bonus)
+        self.start_spread = float(start_spread)
         self.terminate_when_flipped = bool(terminate_when_flipped)
         # a free joint (MuJoCo type 0) first: qpos[3:7] is then the torso's quaternion
         self._free_torso = int(self.env.unwrapped.model.jnt_type[0]) == 0
@@ -206,6 +215,12 @@ class WallPenaltyWrapper(gym.Wrapper):
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
+        if self.start_spread:
+            u = self.env.unwrapped
+            qpos, qvel = u.data.qpos.copy(), u.data.qvel.copy()
+            qpos[0] += u.np_random.uniform(0.0, self.start_spread)
+            u.set_state(qpos, qvel)
+            obs = u._get_obs()
         self._x = self._qpos_x()
         info = dict(info)
         info["x_position"] = self._x
@@ -240,7 +255,7 @@ class WallPenaltyWrapper(gym.Wrapper):
 
 def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
                   render_mode: str | None = None, position_bonus: float = 0.0, reach_bonus: float = 0.0,
-                  terminate_when_flipped: bool = False, **overrides: Any) -> gym.Env:
+                  start_spread: float = 0.0, terminate_when_flipped: bool = False, **overrides: Any) -> gym.Env:
     """Create a wall environment.
 
     Parameters
@@ -257,6 +272,9 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
         Training-only shaping of the good demonstrator, see :class:`WallPenaltyWrapper`.
     reach_bonus : float
         Training-only: a bonus per step just short of the wall, see :class:`WallPenaltyWrapper`.
+    start_spread : float
+        Training-only: starts spread uniformly over ``[0, start_spread]`` ahead of Gymnasium's,
+        see :class:`WallPenaltyWrapper`.
     terminate_when_flipped : bool
         Training-only: end the episode when the torso is upside down (Ant), see
         :class:`WallPenaltyWrapper`.
@@ -279,7 +297,7 @@ def make_wall_env(name: str, *, constrained: bool, max_episode_steps: int = 500,
     base = gym.make(spec.env_id, render_mode=render_mode, max_episode_steps=10**9, **kwargs)
     env = WallPenaltyWrapper(base, spec.wall_x, spec.penalty, constrained=constrained,
                              alive_bonus=spec.alive_bonus, position_bonus=position_bonus,
-                             reach_bonus=reach_bonus,
+                             reach_bonus=reach_bonus, start_spread=start_spread,
                              terminate_when_flipped=terminate_when_flipped)
     return gym.wrappers.TimeLimit(env, max_episode_steps=int(max_episode_steps))
 
