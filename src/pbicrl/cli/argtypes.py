@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["DeprecatedFlag", "standalone_parser", "floats", "margins", "nonneg_int", "pairs", "port", "positive_float", "positive_int", "power",
-           "probability"]
+__all__ = ["DeprecatedFlag", "standalone_parser", "finite_float_or_auto", "floats", "margins", "nonneg_int", "pairs",
+           "port", "positive_float", "positive_int", "power", "probability"]
 
 
 def floats(text: str) -> list[float]:
@@ -70,6 +71,13 @@ def nonneg_int(text: str) -> int:
 def positive_float(text: str) -> float:
     """A finite number > 0 (NaN is not)."""
     return _number(text, float, lambda x: 0 < x < float("inf"), "a positive number")
+
+
+def finite_float_or_auto(text: str) -> float | str:
+    """``auto``, or a finite number (NaN and infinities are not)."""
+    if text == "auto":
+        return text
+    return _number(text, float, math.isfinite, "auto or a finite number")
 
 
 def probability(text: str) -> float:

@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pbicrl.cli.argtypes import _number, nonneg_int
+from pbicrl.cli.argtypes import finite_float_or_auto, nonneg_int
 from pbicrl.cli.argtypes import positive_int as _positive_int
 
 __all__ = ["add_subcommands", "build_parser", "main"]
@@ -54,12 +53,6 @@ def _ent_coef(text: str) -> float | str:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
     return value
-
-
-def _target_entropy(text: str) -> float | str:
-    if text == "auto":
-        return text
-    return _number(text, float, math.isfinite, "auto or a finite number")
 
 
 def _cmd_train_wall(args: argparse.Namespace) -> int:
@@ -133,7 +126,7 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
                    help="SAC entropy coefficient: auto, auto_<initial> (e.g. auto_0.05) or a number")
     p.add_argument("--position-bonus", type=float, default=0.0,
                    help="training-only shaping of the good demonstrator: + B * min(x, wall) per step (0: paper)")
-    p.add_argument("--target-entropy", type=_target_entropy, default="auto",
+    p.add_argument("--target-entropy", type=finite_float_or_auto, default="auto",
                    help="entropy the SAC temperature aims at: auto (-dim(action)) or a number; lower: less noisy")
     p.add_argument("--reach-bonus", type=float, default=0.0,
                    help="training-only shaping of the good demonstrator: + B per step with x in [wall - 0.5, wall) "
