@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from pbicrl.demonstrators.sac import load_policy
-from pbicrl.envs.mujoco_wall import make_wall_env, rollout_wall_env, wall_spec
+from pbicrl.envs.mujoco_wall import REACH_MARGIN, make_wall_env, rollout_wall_env, wall_spec
 
 ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 ap.add_argument("env", choices=["halfcheetah", "ant"])
@@ -38,7 +38,8 @@ for j in range(args.n):
 L, M, C, F = (np.array([r[k] for r in rows]) for k in range(4))
 ok = (L == 500) & ~C
 out = {"path": args.policy, "deterministic": deterministic, "first_seed": args.first_seed, "n": args.n,
-       "full_length": int((L == 500).sum()), "cross": int(C.sum()), "reach": int(((M >= spec.wall_x - 0.5) & ok).sum()),
+       "full_length": int((L == 500).sum()), "cross": int(C.sum()),
+       "reach": int(((M >= spec.wall_x - REACH_MARGIN) & ok).sum()),
        "max_x": np.round(np.sort(M), 2).tolist()}
 if args.env == "ant":
     out["flipped_complete_not_crossing"] = int((F & ok).sum())
