@@ -27,7 +27,7 @@ measure work rather than the chain and may only go down: the number of exact lik
 per-call memo scratch (``memo_valid``, ``memo_ll``: the last two arguments of ``run_chunk``), which is not compared.
 
 The states visited stay within the kernel's one-centre range (returns spread < ``_kernels._SPREAD``), whose
-arithmetic must not change by a single bit; the wide-spread path is checked against its oracle elsewhere.
+arithmetic must not change (to ``LL_RTOL``, below); the wide-spread path is checked against its oracle elsewhere.
 
 One deliberate exception (issue 18, 2026-11-29): the explicit-pairs kernel (``point_mass_sampled``) now takes one
 logarithm per product instead of one per pair, which moves log-likelihood values in their last bits. For that
