@@ -81,6 +81,9 @@ def main() -> None:
     ap.add_argument("--likelihood", choices=["pairwise", "grouped"], default="pairwise",
                     help="groups design: inference with the paper's Eq. 7 or the exact grouped likelihood")
     ap.add_argument("--diagnose", action="store_true", help="also record R-hat / ESS of every replicate (needs ArviZ)")
+    ap.add_argument("--sign", choices=["any", "negative"], default="any",
+                    help="flat prior on [-3, 3] (any) or [-3, 0] (negative: the sampler then moves log|w|)")
+    ap.add_argument("--p-joint", type=float, default=0.0, help="probability of the joint weight step")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/reports"))
     args = ap.parse_args()
     designs = ["pairs", "groups"] if args.design == "both" else [args.design]
@@ -88,12 +91,16 @@ def main() -> None:
         gp = args.group_pairs if (design == "groups" and args.group_pairs) else "all"
         power = args.power if args.power == "pairs" else float(args.power)
         lik = args.likelihood if design == "groups" else "pairwise"
-        problem = SBCProblem(design=design, group_pairs=gp, power=power, likelihood=lik)
+        problem = SBCProblem(design=design, group_pairs=gp, power=power, likelihood=lik, sign=args.sign)
         tag = design if gp == "all" else f"{design}_pairs{gp}"
         if lik == "grouped":
             tag += "_grouped"
         if power != 1.0:
             tag += f"_power-{args.power}"
+        if args.sign != "any":
+            tag += f"_{args.sign}"
+        if args.p_joint:
+            tag += f"_pjoint{args.p_joint:g}"
         t0 = time.perf_counter()
 
         def tick(r: int, design: str = design, t0: float = t0) -> None:
@@ -102,7 +109,7 @@ def main() -> None:
                       file=sys.stderr, flush=True)
 
         res = run_sbc(problem, n_replicates=args.replicates, n_iterations=args.iterations, seed=args.seed,
-                      diagnose=args.diagnose, progress=tick)
+                      diagnose=args.diagnose, progress=tick, p_joint=args.p_joint)
         out = res.to_dict()
         text = json.dumps(out, indent=2) + "\n"
         _atomic(args.out / f"sbc_{tag}.json", lambda p, text=text: Path(p).write_text(text))

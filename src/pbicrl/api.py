@@ -9,7 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pbicrl.config import DEPRECATED_NAMES, ConfigError, InferConfig, canonical_names
+from pbicrl.config import DEPRECATED_NAMES, ConfigError, InferConfig, canonical_names, check_setting
 from pbicrl.inference.constraints import Constraint, ConstraintSet, constraint_from_dict
 from pbicrl.inference.data import Dataset
 from pbicrl.inference.likelihood import PreferenceLikelihood
@@ -17,6 +17,7 @@ from pbicrl.inference.preferences import Margins
 from pbicrl.inference.priors import IndicatorPrior, WeightPrior
 from pbicrl.inference.results import Posterior
 from pbicrl.inference.samplers import SamplerSettings, sample
+from pbicrl.inference.samplers.driver import StoppingRule
 
 __all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config"]
 
@@ -83,7 +84,7 @@ def infer(
     power: float | str | None = None,
     pairs: str | int | None = None,
     pairs_seed: int = _D.pairs_seed,
-    iterations: int = _D.iterations,
+    iterations: int | str = _D.iterations,
     burn_in: int | None = None,
     thin: int | None = None,
     chains: int = _D.chains,
@@ -109,7 +110,10 @@ def infer(
     constraints: Sequence[Constraint | dict] | None = None,
     sigma_theta: float = _D.sigma_theta,
     p_theta: float | None = None,
-    p_joint: float = _D.p_joint,
+    p_joint: float | None = _D.p_joint,
+    target_ess: float = _D.target_ess,
+    target_rhat: float = _D.target_rhat,
+    max_time: float = _D.max_time,
     alpha: float = _D.alpha,
     progress: bool = True,
     **deprecated: Any,
@@ -143,8 +147,14 @@ def infer(
         pair (seeded by ``pairs_seed``).
     iterations, burn_in, thin, chains, seed, jobs, sigma, f_s, p_flip, init_scale, init_range
         Sampler settings (:class:`~pbicrl.inference.samplers.SamplerSettings`); ``iterations`` per chain (formerly
-        ``n_iterations``), ``chains`` independent chains (formerly ``n_chains``), ``jobs`` worker processes
-        (formerly ``n_jobs``; the draws do not depend on it).
+        ``n_iterations``), or ``"auto"`` (default): run until converged (below); ``chains`` independent chains
+        (formerly ``n_chains``), ``jobs`` worker processes (formerly ``n_jobs``; the draws do not depend on it).
+        With ``"auto"``, ``burn_in`` is the warm-up (default 2,000) and ``thin`` does not apply.
+    target_ess, target_rhat, max_time : float
+        ``iterations="auto"``: sample in rounds until every reported quantity has split R-hat < ``target_rhat``
+        and bulk and tail ESS >= ``target_ess`` (defaults 1.01 and 400), or ``max_time`` seconds (default 600) are
+        spent. The posterior's ``converged`` and ``convergence`` say which; an unconverged run issues one
+        :class:`~pbicrl.errors.PbicrlWarning` naming the quantities that fall short.
     prior, prior_low, prior_high, prior_mean, prior_scale, prior_abs_scale, prior_df, penalty_sign
         The prior on each penalty weight (default: half-Student-t with 3 degrees of freedom on (-inf, 0], scale
         :math:`2.5/(\beta\,\mathrm{sd}_j)` per feature), see :class:`~pbicrl.inference.priors.WeightPrior`.
@@ -159,10 +169,10 @@ def infer(
         Parametric constraints over the dataset's states (axis halfspace, halfspace, box, ball).
     sigma_theta, p_theta
         Parameter random-walk step and move probability (see :class:`~pbicrl.inference.samplers.SamplerSettings`).
-    p_joint : float
+    p_joint : float, optional
         ``pbicrl``/``bpl`` samplers: probability of the joint step of all active weights (covariance adapted in
-        warm-up), in [0, 1); default 0. Worth it on large data (``benchmarks/reports/speed.md``); ``p_flip`` +
-        ``p_theta`` + ``p_joint`` must stay below 1.
+        warm-up), in [0, 1); default 0.3 for ``pbicrl`` run until converged, else 0; ``p_flip`` + ``p_theta`` +
+        ``p_joint`` must stay below 1.
     alpha : float
         Level of the identifiability analysis run before sampling (:func:`pbicrl.analysis.identify.identify`); its
         result is in ``summary.json`` under ``identified``.
@@ -216,6 +226,12 @@ def infer(
                               "WeightPrior or as settings")
     if indicator_prior is not None and indicator_pi != _D.indicator_pi:
         raise ConfigError("indicator_prior: given together with indicator_pi; give one of them")
+    for key, value in (("iterations", iterations), ("target_ess", target_ess), ("target_rhat", target_rhat),
+                       ("max_time", max_time)):
+        check_setting(key, value, where="infer")
+    auto = iterations == "auto"
+    if p_joint is None:  # fixed-length runs keep the single-site moves of earlier releases (same chains)
+        p_joint = 0.3 if sampler == "pbicrl" and auto else 0.0
     _check_p_joint(p_joint, sampler)
     _check_groups(dataset)
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,
@@ -227,7 +243,8 @@ def infer(
                              dataset)
     wprior = weight_prior if weight_prior is not None else _weight_prior(**prior_settings)
     settings = SamplerSettings(
-        method=sampler, n_iterations=int(iterations), burn_in=burn_in, thin=thin, sigma=sigma, f_s=f_s,
+        method=sampler, n_iterations=2 if auto else int(iterations), burn_in=None if auto else burn_in,
+        thin=None if auto else thin, sigma=sigma, f_s=f_s,
         p_flip=p_flip, init_scale=init_scale, init_range=tuple(init_range), weight_prior=wprior,
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
         candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta,
@@ -237,8 +254,12 @@ def infer(
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
                      candidates=candidates, penalty_sign=wprior.sign if sampler not in ("paper", "authors") else "any",
                      constraints=cset)
+    stopping = None
+    if auto:
+        stopping = StoppingRule(target_ess=float(target_ess), target_rhat=float(target_rhat), max_time=float(max_time),
+                                **({} if burn_in is None else {"warmup": int(burn_in)}))
     post = sample(lik, settings, n_chains=chains, seed=seed, n_jobs=jobs, progress=progress,
-                  feature_names=dataset.feature_names, constraints=cset, identified=ident)
+                  feature_names=dataset.feature_names, constraints=cset, identified=ident, stopping=stopping)
     K = dataset.n_groups
     m = Margins.parse(margins, K)
     post.extra.update({"data": {"n_trajectories": dataset.n_trajectories, "n_features": dataset.n_features,

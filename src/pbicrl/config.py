@@ -94,9 +94,18 @@ class InferConfig:
     p_joint : float
         ``pbicrl``/``bpl`` samplers: probability per iteration of moving all active penalty weights together (a
         Gaussian step whose covariance is adapted during warm-up, then fixed), in [0, 1); it is taken from the
-        single-weight steps' share, so ``p_flip`` + ``p_theta`` + ``p_joint`` must stay below 1. Default 0 (single-weight
-        steps only; the ``paper``/``authors`` samplers have no joint move). It pays with many correlated weights and
-        large data, see ``benchmarks/reports/speed.md``.
+        single-weight steps' share, so ``p_flip`` + ``p_theta`` + ``p_joint`` must stay below 1. Default (None): 0.3
+        for ``pbicrl`` with ``iterations = "auto"`` (its joint step moves :math:`\log|w|` of the sign-constrained
+        penalties: it mixes the correlated penalties of required constraints, ``benchmarks/reports/fast_default.md``),
+        otherwise 0 (fixed-length runs keep the single-site moves); the ``paper``/``authors`` samplers have no joint
+        move.
+    iterations : int or "auto"
+        ``"auto"`` (default): run until converged: every reported quantity has split R-hat < ``target_rhat`` and
+        bulk and tail ESS >= ``target_ess``, or ``max_time`` seconds are spent
+        (:class:`pbicrl.inference.samplers.driver.StoppingRule`; ``burn_in`` then sets the warm-up, default 2,000).
+        A number: exactly that many iterations per chain (warm-up included), as in earlier releases.
+    target_ess, target_rhat, max_time : float
+        The stopping rule of ``iterations = "auto"`` (defaults 400, 1.01, 600 s).
     """
 
     nominal_weights: list[float] | None = _setting(None, list)
@@ -106,7 +115,7 @@ class InferConfig:
     pairs: str | int | None = _setting(None, str, int)
     pairs_seed: int = _setting(0, int, minimum=0)
     sampler: str = _setting("pbicrl", str)
-    iterations: int = _setting(400_000, int, minimum=1)
+    iterations: int | str = _setting("auto", int, str, minimum=1)
     burn_in: int | None = _setting(None, int, minimum=0)
     thin: int | None = _setting(None, int, minimum=1)
     chains: int = _setting(4, int, minimum=1)
@@ -132,7 +141,10 @@ class InferConfig:
     constraints: list | None = _setting(None, list)
     sigma_theta: float = _setting(0.5, int, float)
     p_theta: float | None = _setting(None, int, float)
-    p_joint: float = _setting(0.0, int, float, half_open=(0.0, 1.0))
+    p_joint: float | None = _setting(None, int, float, half_open=(0.0, 1.0))
+    target_ess: float = _setting(400.0, int, float)
+    target_rhat: float = _setting(1.01, int, float)
+    max_time: float = _setting(600.0, int, float)
 
     def updated(self, **values: Any) -> "InferConfig":
         """Copy with the non-``None`` values replaced (command-line options over the file).
@@ -241,6 +253,14 @@ def check_setting(key: str, value: Any, *, where: str = "config") -> None:
     types = spec.metadata["types"]
     if isinstance(value, bool) or not isinstance(value, types):
         raise ConfigError(f"{where} key '{key}': expected {' or '.join(t.__name__ for t in types)}, got {value!r}")
+    if key == "iterations" and isinstance(value, str):
+        if value != "auto":
+            raise ConfigError(f"{where} key 'iterations': expected a number of iterations or \"auto\", got {value!r}")
+        return
+    if key in ("target_ess", "max_time") and not (0 < value < float("inf")):
+        raise ConfigError(f"{where} key '{key}': expected a positive number, got {value!r}")
+    if key == "target_rhat" and not (1.0 < value < float("inf")):
+        raise ConfigError(f"{where} key 'target_rhat': expected a number > 1, got {value!r}")
     low = spec.metadata["minimum"]
     if low is not None and value < low:
         raise ConfigError(f"{where} key '{key}': expected an integer >= {low}, got {value}")

@@ -302,6 +302,7 @@ def run_sbc(
     bins: int = 9,
     diagnose: bool = False,
     progress: Any = None,
+    p_joint: float = 0.0,
 ) -> SBCResult:
     """Run SBC of the ``pbicrl`` sampler.
 
@@ -321,6 +322,9 @@ def run_sbc(
         For the chi-square test.
     diagnose : bool
         Also record the worst R-hat and smallest bulk ESS per replicate (slower; needs ArviZ).
+    p_joint : float
+        Probability of the joint weight step (0.3 in runs until converged). With ``problem.sign = "negative"`` the
+        sampler moves the penalties on ``log|w|`` (the default moves), so that SBC checks them.
     progress : callable, optional
         Called as ``progress(replicate_index)`` after each replicate.
     """
@@ -340,7 +344,8 @@ def run_sbc(
     stride = min(10, kept // per_chain)
     thin = max(1, kept // (per_chain * stride))
     settings = SamplerSettings(method="pbicrl", n_iterations=int(n_iterations), burn_in=burn, thin=thin,
-                               weight_prior=problem.weight_prior, indicator_prior=problem.indicator_prior)
+                               weight_prior=problem.weight_prior, indicator_prior=problem.indicator_prior,
+                               p_joint=float(p_joint))
     root = np.random.SeedSequence(int(seed))
     d = int(problem.n_features)
     names = [f"penalty[f{j}]" for j in range(d)] + [f"indicator[f{j}]" for j in range(d)]

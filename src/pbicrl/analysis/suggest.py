@@ -516,6 +516,7 @@ def suggest_run(
     n: int = 5,
     *,
     data: str | os.PathLike[str] | Dataset | None = None,
+    allow_unconverged: bool = False,
     **kwargs: Any,
 ) -> Suggestions:
     """:func:`suggest` for a run directory (``pbicrl infer --out``) and a pool file.
@@ -528,6 +529,9 @@ def suggest_run(
     n : int
     data : path or Dataset, optional
         The labelled data of the run; default: the file the run records (``extra.data.path``).
+    allow_unconverged : bool
+        Rank from a run until converged that did not converge (refused by default: its draws are not yet the
+        posterior, so neither is the information a label would bring).
     **kwargs
         Passed to :func:`suggest`.
     """
@@ -535,6 +539,13 @@ def suggest_run(
     from pbicrl.runs import load_run
 
     run = load_run(run_dir)
+    conv = (run.summary.get("extra") or {}).get("convergence") if isinstance(run.summary, dict) else None
+    if isinstance(conv, dict) and conv.get("converged") is False and not allow_unconverged:
+        failing = conv.get("failing") or {}
+        raise ValueError(f"run: {run_dir} did NOT CONVERGE ({len(failing)} reported quantities fall short, e.g. "
+                         f"{next(iter(failing.items()), ('', ''))[0]}: {next(iter(failing.values()), '')}); suggestions "
+                         "from it would rank by draws that are not yet the posterior. Rerun the inference with a larger "
+                         "--max-time, or pass --allow-unconverged")
     if data is None:
         data = run.data_path
         if data is None:

@@ -19,12 +19,14 @@ from typing import Any
 import numpy as np
 
 from pbicrl.cli.argtypes import floats as _floats
+from pbicrl.cli.argtypes import iterations as _iterations
 from pbicrl.cli.argtypes import margins as _margins
 from pbicrl.cli.argtypes import nonneg_int as _nonneg_int
 from pbicrl.cli.argtypes import pairs as _pairs
 from pbicrl.cli.argtypes import positive_float as _positive_float
 from pbicrl.cli.argtypes import positive_int as _positive_int
 from pbicrl.cli.argtypes import power as _power
+from pbicrl.cli.argtypes import rhat_target as _rhat_target
 from pbicrl.config import InferConfig
 from pbicrl.inference.data import resolve_dataset_path
 
@@ -61,8 +63,17 @@ def _add_infer(sub: Any) -> None:
     p.add_argument("--pairs", type=_pairs, help="pairwise only: 'all' cross-group pairs (default) or N per group pair")
     p.add_argument("--sampler", choices=["pbicrl", "paper", "authors", "bpl"],
                    help="pbicrl (default), paper (Algorithm 1), authors (the authors' code), bpl")
-    p.add_argument("--iterations", type=_positive_int, help=f"iterations per chain (default {_D.iterations})")
-    p.add_argument("--burn-in", type=_nonneg_int, help="warm-up iterations (default: a quarter)")
+    p.add_argument("--iterations", type=_iterations,
+                   help="iterations per chain, or 'auto' (default): run until every reported quantity has converged "
+                   "(--target-ess, --target-rhat) or --max-time is spent")
+    p.add_argument("--target-ess", type=_positive_float,
+                   help=f"--iterations auto: bulk and tail ESS every reported quantity needs (default {_D.target_ess:g})")
+    p.add_argument("--target-rhat", type=_rhat_target,
+                   help=f"--iterations auto: largest split R-hat (default {_D.target_rhat:g})")
+    p.add_argument("--max-time", type=_positive_float,
+                   help=f"--iterations auto: stop after this many seconds, converged or not (default {_D.max_time:g})")
+    p.add_argument("--burn-in", type=_nonneg_int, help="warm-up iterations (default: 2,000 with --iterations auto, "
+                   "else a quarter)")
     p.add_argument("--thin", type=_positive_int, help="keep every n-th draw (default: <= 10000 draws per chain)")
     p.add_argument("--chains", type=_positive_int, help=f"independent chains (default {_D.chains})")
     p.add_argument("--jobs", type=_positive_int, help="worker processes (default: one per core)")
@@ -72,7 +83,7 @@ def _add_infer(sub: Any) -> None:
                    help=f"paper sampler: sampling frequency f_s (default {_D.f_s})")
     p.add_argument("--p-flip", type=float, help=f"pbicrl sampler: probability of a flip move (default {_D.p_flip:g})")
     p.add_argument("--p-joint", type=float, help="pbicrl/bpl samplers: probability in [0, 1) of a joint step of all "
-                   f"active weights (adapted covariance; default {_D.p_joint:g}; pays on large data)")
+                   "active weights (adapted covariance; default 0.3 for pbicrl with --iterations auto, else 0)")
     p.add_argument("--prior", choices=["student-t", "flat", "normal"],
                    help="prior on penalty weights (default student-t: half-t on (-inf, 0], scale-aware)")
     p.add_argument("--prior-bounds", type=_floats,
@@ -108,6 +119,8 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         thin=getattr(args, "thin", None), chains=getattr(args, "chains", None), jobs=getattr(args, "jobs", None),
         seed=getattr(args, "seed", None), sigma=getattr(args, "sigma", None), f_s=getattr(args, "f_s", None),
         p_flip=getattr(args, "p_flip", None), p_joint=getattr(args, "p_joint", None),
+        target_ess=getattr(args, "target_ess", None), target_rhat=getattr(args, "target_rhat", None),
+        max_time=getattr(args, "max_time", None),
         prior=None if prior is None else prior.replace("-", "_"),
         prior_low=None if bounds is None else bounds[0], prior_high=None if bounds is None else bounds[1],
         prior_scale=getattr(args, "prior_scale", None), prior_df=getattr(args, "prior_df", None),
@@ -147,7 +160,26 @@ def _cmd_infer(args: argparse.Namespace) -> int:
         if args.check:
             print(res.table())
         print(f"wrote {args.out / 'summary.json'} and {args.out / 'chains.npz'}")
+    line = convergence_line(post)
+    if line:
+        print(line, file=sys.stderr if post.converged is False else sys.stdout)
     return 0
+
+
+def convergence_line(post: Any) -> str:
+    """One line on a run until converged: converged in how long, or NOT CONVERGED and what falls short."""
+    conv = post.convergence
+    if conv is None:
+        return ""
+    it = conv.get("iterations_run")
+    if conv.get("converged"):
+        return (f"converged in {conv['wall_s']:.1f} s ({it:,} iterations per chain, {conv['rounds']} rounds): every "
+                f"reported quantity has R-hat < {conv['target_rhat']:g} and bulk/tail ESS >= {conv['target_ess']:g} "
+                f"(smallest ESS {conv['min_ess']:.0f})")
+    failing = conv.get("failing") or {}
+    worst = "; ".join(f"{k}: {v}" for k, v in list(failing.items())[:3])
+    return (f"NOT CONVERGED after {conv['wall_s']:.0f} s ({it:,} iterations per chain): {len(failing)} reported "
+            f"quantities fall short ({worst}); do not trust the summaries yet - rerun with a larger --max-time")
 
 
 def _add_identify(sub: Any) -> None:

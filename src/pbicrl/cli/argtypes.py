@@ -8,8 +8,8 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["DeprecatedFlag", "standalone_parser", "finite_float_or_auto", "floats", "margins", "nonneg_int", "pairs",
-           "port", "positive_float", "positive_int", "power", "probability"]
+__all__ = ["DeprecatedFlag", "standalone_parser", "finite_float_or_auto", "floats", "iterations", "margins",
+           "nonneg_int", "pairs", "port", "positive_float", "positive_int", "power", "probability", "rhat_target"]
 
 
 def floats(text: str) -> list[float]:
@@ -78,6 +78,18 @@ def finite_float_or_auto(text: str) -> float | str:
     if text == "auto":
         return text
     return _number(text, float, math.isfinite, "auto or a finite number")
+
+
+def iterations(text: str) -> int | str:
+    """``auto`` (run until converged) or a positive integer."""
+    if text == "auto":
+        return text
+    return _number(text, int, lambda n: n >= 1, "'auto' or a positive integer")
+
+
+def rhat_target(text: str) -> float:
+    """A finite number > 1 (an R-hat target)."""
+    return _number(text, float, lambda x: 1.0 < x < float("inf"), "a number > 1")
 
 
 def probability(text: str) -> float:

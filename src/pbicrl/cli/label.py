@@ -48,6 +48,8 @@ def add_subcommands(sub: Any) -> None:
                    help="information about the indicator vector c (default) or about each P(c_j=1)")
     s.add_argument("--draws", type=_positive_int, default=200, help="posterior draws used (default 200)")
     s.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    s.add_argument("--allow-unconverged", action="store_true",
+                   help="rank from a run that did not converge (refused by default)")
     s.set_defaults(func=_cmd_suggest)
 
 
@@ -118,7 +120,8 @@ def _cmd_label(args: argparse.Namespace) -> int:
 def _cmd_suggest(args: argparse.Namespace) -> int:
     from pbicrl.analysis.suggest import suggest_run
 
-    res = suggest_run(args.run, args.pool, args.n, data=args.data, target=args.target, max_draws=args.draws)
+    res = suggest_run(args.run, args.pool, args.n, data=args.data, target=args.target, max_draws=args.draws,
+                      allow_unconverged=args.allow_unconverged)
     if args.json:
         print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
     else:

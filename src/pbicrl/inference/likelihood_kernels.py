@@ -897,7 +897,7 @@ def group_term(x: np.ndarray, buf: np.ndarray) -> float:
 # instead of O(n): about 100 bins for returns spread over 10 nats. Used for the direct form (_gb_direct) and, when
 # P_k is close to 1, the complement form (_gb_comp); returns spread too thinly over the grid and non-finite returns
 # use the per-item path.
-_GB_MIN = 2048
+_GB_MIN = 64  # below this a bin rarely pays; _gb_moments decides by its own cost rule above it
 _GB_WIDTH = 0.1
 _GB_ORDER = 12
 _GB_T = _GB_ORDER + 2  # Taylor coefficients needed for h'' (orders 0 .. _GB_ORDER + 1)

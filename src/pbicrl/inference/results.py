@@ -608,10 +608,33 @@ class Posterior(DrawsView):
         """
         out = self._likelihood_warnings()
         out.extend(self._identification_warnings() if self.identified is not None else self._heuristic_warnings())
+        conv = self.convergence
+        if conv is not None:  # a run until converged: its stopping rule's verdict is the one convergence message
+            if conv.get("converged") is False:
+                failing = conv.get("failing") or {}
+                worst = "; ".join(f"{k}: {v}" for k, v in list(failing.items())[:4])
+                out.append(f"NOT CONVERGED after {_num_s(conv.get('wall_s'))} (max_time "
+                           f"{_num_s((conv.get('stopping_rule') or {}).get('max_time'))}): {len(failing)} reported "
+                           f"quantities fall short ({worst}); the summaries are not to be trusted yet - rerun with a "
+                           "larger --max-time, or look at the trace plots")
+            return out
         diag = self.diagnostics()
         out.extend(diag.warnings())  # R-hat > 1.01, bulk ESS < 400
         out.extend(self._joint_move_hint(diag))
         return out
+
+    @property
+    def convergence(self) -> dict | None:
+        """The stopping rule's verdict of a run until converged (``iterations="auto"``), else None: ``converged``,
+        ``failing`` (quantity -> what falls short), per-quantity R-hat / ESS, ``iterations_run``, ``wall_s``."""
+        conv = self.extra.get("convergence") if isinstance(self.extra, dict) else None
+        return conv if isinstance(conv, dict) else None
+
+    @property
+    def converged(self) -> bool | None:
+        """Whether a run until converged met its stopping rule (None for a fixed-length run)."""
+        conv = self.convergence
+        return None if conv is None else bool(conv.get("converged"))
 
     def _joint_move_hint(self, diag: "Diagnostics") -> list[str]:
         """One line when single-weight moves are the likely reason for poor mixing: a ``pbicrl``/``bpl`` run with
@@ -724,7 +747,8 @@ class Posterior(DrawsView):
                                        else int(self.counts[:, C_EVALS].sum())),
             "settings": settings,
             "warnings": self.warnings(),
-        } | ({"extra": self.extra} if self.extra else {})
+        } | ({"converged": self.converged} if self.convergence is not None else {}) \
+          | ({"extra": self.extra} if self.extra else {})
         return json_safe(out)
 
     def table(self, width: int = 100) -> str:
@@ -1060,6 +1084,11 @@ def _parameter_prior_driven(rng: list | None, bounds: tuple[float, float] | None
         return None
     span = bounds[1] - bounds[0]
     return bool(lo < bounds[0] + 0.05 * span or hi > bounds[0] + 0.95 * span)
+
+
+def _num_s(x: Any) -> str:
+    """Seconds for a message (``?`` when unknown)."""
+    return f"{float(x):.0f} s" if _is_real(x) else "?"
 
 
 def _num(x: Any, width: int) -> str:

@@ -25,6 +25,7 @@ __all__ = ["InferenceJob", "InferenceSettings", "JobBusy", "summarise", "run_dir
 
 _MAX_ITERATIONS = 2_000_000
 _MAX_CHAINS = 8
+_PAGE_MAX_TIME = 120.0  # seconds a run until converged may take from the page before it reports NOT CONVERGED
 
 
 class JobBusy(RuntimeError):
@@ -41,8 +42,8 @@ class InferenceSettings:
     """What the page may choose: iterations and chains per run, margins (K-1 gaps), seed, suggestions, and
     whether to draw the figures of ``pbicrl plot`` (the slowest step of a short run)."""
 
-    iterations: int = 20_000
-    chains: int = 2
+    iterations: int | str = "auto"
+    chains: int = 4
     margins: tuple[float, ...] | None = None
     seed: int = 0
     n_suggest: int = 5
@@ -76,7 +77,8 @@ class InferenceSettings:
                     for m in margins):
                 raise ValueError(f"margins: expected a list of K-1 non-negative numbers, got {margins!r}")
             margins = tuple(float(m) for m in margins)
-        return cls(integer("iterations", 1_000, _MAX_ITERATIONS, cls.iterations),
+        its = body.get("iterations", cls.iterations)
+        return cls(its if its == "auto" else integer("iterations", 1_000, _MAX_ITERATIONS, cls.iterations),
                    integer("chains", 1, _MAX_CHAINS, cls.chains), margins,
                    integer("seed", 0, 2**31 - 1, cls.seed), integer("n_suggest", 1, 100, cls.n_suggest), figures)
 
@@ -84,15 +86,29 @@ class InferenceSettings:
 class _Reporter:
     """Stands in for the sampler's tqdm bar in the child: sends the fraction done to the parent."""
 
-    def __init__(self, total: int, q: Any) -> None:
-        self.total, self.done, self.q, self._last = max(int(total), 1), 0, q, 0.0
+    def __init__(self, total: int | None, q: Any) -> None:
+        # total None: a run until converged; progress is then the smallest ESS over its target
+        self.total = None if total is None else max(int(total), 1)
+        self.done, self.q, self._last, self._frac = 0, q, 0.0, 0.0
+        self._text = "sampling until converged (warm-up)" if total is None else "sampling"
 
     def update(self, n: int = 1) -> None:
         self.done += int(n)
         now = time.monotonic()
+        if self.total is None:
+            if now - self._last > 0.5:
+                self._last = now
+                self.q.put(("progress", self._frac, self._text))
+            return
         if now - self._last > 0.2 or self.done >= self.total:
             self._last = now
             self.q.put(("progress", min(self.done / self.total, 1.0), "sampling"))
+
+    def set_convergence(self, min_ess: float, target: float, max_rhat: float, elapsed: float) -> None:
+        self._frac = min(0.99, min_ess / target) if min_ess == min_ess else 0.0
+        self._text = (f"sampling until converged: smallest ESS {min_ess:.0f} of {target:g}, largest R-hat "
+                      f"{max_rhat:.3f}, {elapsed:.0f} s")
+        self.q.put(("progress", self._frac, self._text))
 
     def close(self) -> None:
         pass
@@ -124,9 +140,15 @@ def summarise(run: Any, labelled: Any) -> dict[str, Any]:
         q = np.quantile(x, [0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0])
         groups.append({"label": int(k), "name": labelled.group_name(k), "n": int(x.size),
                        "quantiles": [float(v) for v in q], "mean": float(x.mean())})
+    summary = run.summary if hasattr(run, "summary") else {}
+    conv = (summary.get("extra") or {}).get("convergence")
     return {"features": feats, "selected": run.selected(), "groups": groups,
-            "n_draws": int(run.n_chains * run.n_draws), "warnings": list(run.summary.get("warnings", []))
-            if hasattr(run, "summary") else []}
+            "n_draws": int(run.n_chains * run.n_draws), "warnings": list(summary.get("warnings", [])),
+            # None: a fixed-length run (no stopping rule); False: shown as NOT CONVERGED above the results
+            "converged": None if not isinstance(conv, dict) else bool(conv.get("converged")),
+            "convergence": None if not isinstance(conv, dict) else
+            {k: conv.get(k) for k in ("min_ess", "max_rhat", "failing", "wall_s", "iterations_run", "target_ess",
+                                      "target_rhat")}}
 
 
 def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: Any) -> None:
@@ -147,7 +169,7 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
         full = load_dataset(labelling_path, allow_unlabelled=True)
         labelled = full.labelled()
         rd = Path(run_dir)
-        post = infer(labelled, iterations=settings.iterations, chains=settings.chains, jobs=1,
+        post = infer(labelled, iterations=settings.iterations, chains=settings.chains, jobs=None, max_time=_PAGE_MAX_TIME,
                      seed=settings.seed, margins=None if settings.margins is None else list(settings.margins),
                      progress=True)
         data_path = rd / "data.npz"

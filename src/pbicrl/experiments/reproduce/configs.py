@@ -17,7 +17,7 @@ __all__ = ["PAPER_PRIOR", "FLAT_PRIOR", "DEFAULT_MODEL", "NOT_DEFAULT", "BOOKKEE
 # Settings of the models the reports compare, in InferConfig's names; every run is one chain.
 PAPER_PRIOR = {"prior": "improper", "penalty_sign": "any"}  # the paper's flat improper prior (Algorithms 1-3)
 FLAT_PRIOR = {"prior": "flat", "prior_low": -1000.0, "prior_high": 1000.0, "penalty_sign": "any"}
-DEFAULT_MODEL = {"likelihood": "grouped", "chains": 1}  # pbicrl's default: grouped likelihood, half-t prior
+DEFAULT_MODEL = {"likelihood": "grouped", "chains": 1, "iterations": "auto"}  # pbicrl's default: grouped, half-t, until converged
 NOT_DEFAULT = ("pairs", *PAPER_PRIOR, *FLAT_PRIOR)  # settings a default-model row drops (takes the defaults)
 BOOKKEEPING = ("label", "n", "wall")  # keys of a run's config that only the report reads (not settings)
 

@@ -47,6 +47,19 @@ def _logprior_theta(theta: np.ndarray, p0: int, p1: int, tlo: np.ndarray, thi: n
     return total
 
 
+@njit(cache=True, error_model="numpy")
+def _log_q_birth(w_abs: float, mu_a: float, s_a: float, b: float) -> float:
+    r"""Log density (of :math:`w`, on the prior's half-line) of the birth proposal: with probability 1/2
+    :math:`\log|w| \sim \mathcal{N}(\mu_a, s_a^2)`, else :math:`|w| \sim U(0, b)` (the prior's shape near 0)."""
+    eta = math.log(w_abs)
+    la = lognormal(eta, mu_a, s_a) - eta
+    lb = -math.log(b) if w_abs <= b else -np.inf
+    hi = max(la, lb)
+    if hi == -np.inf:
+        return -np.inf
+    return hi + math.log(0.5 * (math.exp(la - hi) + math.exp(lb - hi)))
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _bound(power: float, a_new: np.ndarray, pi_: np.ndarray, pj: np.ndarray, pm: np.ndarray) -> float:
     """``power`` times an upper bound on the explicit pairs' log-likelihood, rounding included (see the caller)."""
@@ -128,7 +141,7 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
     sb, sQ, sQi, sE, sEi, gitems, goff, gmarg, gbuf, moff = (lik.b, lik.Q, lik.Qinv, lik.E, lik.Einv, lik.gitems,
                                                              lik.goff, lik.gmarg, lik.gbuf, lik.moff)
     fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi = cons
-    d_known, naive, cand, p_flip, p_theta, f_s, p_joint = moves
+    d_known, naive, cand, p_flip, p_theta, f_s, p_joint, lsg, qb = moves
     beta, power, log_odds, pkind, prm = model
     u_j, u_mv, z, u_acc, zt, zj = rnd
     sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt, jcov, jst, jsc = adapt
@@ -233,9 +246,18 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                     accepted = True
             elif c[j] == 0:
                 # reversible jump on: draw w_j ~ q_j (and theta_j ~ q_theta for a parametric constraint)
-                w_new = q_mu[j] + q_s[j] * z[t]
+                if lsg[j] != 0:
+                    # mixture on the magnitude: u_mv / p_flip is a fresh uniform that picks the component
+                    if u_mv[t] < 0.5 * p_flip:
+                        w_abs = math.exp(q_mu[j] + q_s[j] * z[t])
+                    else:
+                        w_abs = qb[j] * 0.5 * math.erfc(-z[t] / math.sqrt(2.0))  # Phi(z) b: uniform on (0, b)
+                    w_new = lsg[j] * w_abs
+                    lq = _log_q_birth(w_abs, q_mu[j], q_s[j], qb[j]) if w_abs > 0.0 else -np.inf
+                else:
+                    w_new = q_mu[j] + q_s[j] * z[t]
+                    lq = lognormal(w_new, q_mu[j], q_s[j])
                 lpw = logprior_w(pkind[j], prm, j, w_new)
-                lq = lognormal(w_new, q_mu[j], q_s[j])
                 if j >= d_known:
                     m = j - d_known
                     p0 = poff[m]
@@ -281,7 +303,10 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
             else:
                 # reversible jump off: drop w_j (and theta_j); the reverse of the move above
                 lpw = logprior_w(pkind[j], prm, j, w[j])
-                lq = lognormal(w[j], q_mu[j], q_s[j])
+                if lsg[j] != 0:
+                    lq = _log_q_birth(abs(w[j]), q_mu[j], q_s[j], qb[j]) if w[j] != 0.0 else -np.inf
+                else:
+                    lq = lognormal(w[j], q_mu[j], q_s[j])
                 if j >= d_known:
                     m = j - d_known
                     lpw += _logprior_theta(theta, poff[m], poff[m + 1], tlo, thi, True)
@@ -318,8 +343,15 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
         elif move == MOVE_WEIGHT:
             counts[C_W_PROP] += 1
             ad[3, j] += 1
-            step = sigma[j] * z[t]
-            w_new = w[j] + step
+            jac = 0.0
+            if lsg[j] != 0 and w[j] != 0.0:
+                # random walk on eta = log|w|; the Jacobian |dw'/deta'| / |dw/deta| = |w'| / |w| enters the ratio
+                jac = sigma[j] * z[t]
+                w_new = lsg[j] * math.exp(math.log(abs(w[j])) + jac)
+                step = w_new - w[j]
+            else:
+                step = sigma[j] * z[t]
+                w_new = w[j] + step
             lp_old = logprior_w(pkind[j], prm, j, w[j]) if use_prior else 0.0
             lp_newj = logprior_w(pkind[j], prm, j, w_new) if use_prior else 0.0
             if lp_newj > -np.inf:
@@ -331,13 +363,13 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                     for i in range(N):
                         a_new[i] = a[i] + step * FbT[j, i]
                     lu = math.log(u_acc[t])
-                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + lp_newj - lp_old < lu
+                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + lp_newj - lp_old + jac < lu
                     log_r = -np.inf
                     if not screened:
                         ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi,
                                                 sE, sEi, gitems, goff, gmarg, gbuf, moff)
                         counts[C_EVALS] += 1
-                        log_r = ll_new - ll + lp_newj - lp_old
+                        log_r = ll_new - ll + lp_newj - lp_old + jac
                     if not screened and (log_r >= 0.0 or lu < log_r):
                         for i in range(N):
                             a[i] = a_new[i]
@@ -407,12 +439,16 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                 sc = jsc[0] * 2.38 / math.sqrt(m)
                 lp_old = 0.0
                 lp_new = 0.0
+                jac = 0.0
                 for r in range(m):
                     acc_ = 0.0
                     for q in range(r + 1):
                         acc_ += Lc[r, q] * zj[t, q]
                     dw[r] = sc * acc_
                     jj = act[r]
+                    if lsg[jj] != 0 and w[jj] != 0.0:  # a step on eta = log|w| (Jacobian |w'|/|w|)
+                        jac += dw[r]
+                        dw[r] = lsg[jj] * math.exp(math.log(abs(w[jj])) + dw[r]) - w[jj]
                     lp_old += logprior_w(pkind[jj], prm, jj, w[jj])
                     lp_new += logprior_w(pkind[jj], prm, jj, w[jj] + dw[r])
                 if lp_new > -np.inf:
@@ -423,13 +459,13 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                         for i in range(N):
                             a_new[i] += dw[r] * FbT[jj, i]
                     lu = math.log(u_acc[t])
-                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + lp_new - lp_old < lu
+                    screened = screen and _bound(power, a_new, pi_, pj, pm) - ll + lp_new - lp_old + jac < lu
                     log_r = -np.inf
                     if not screened:
                         ll_new = power * loglik(a_new, lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi,
                                                 sE, sEi, gitems, goff, gmarg, gbuf, moff)
                         counts[C_EVALS] += 1
-                        log_r = ll_new - ll + lp_new - lp_old
+                        log_r = ll_new - ll + lp_new - lp_old + jac
                     if not screened and (log_r >= 0.0 or lu < log_r):
                         for i in range(N):
                             a[i] = a_new[i]
@@ -475,20 +511,23 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                 for k1 in range(nc):
                     j1 = cand[k1]
                     if c[j1] == 1:
+                        e1 = math.log(abs(w[j1])) if lsg[j1] != 0 and w[j1] != 0.0 else w[j1]
                         for k2 in range(nc):
                             j2 = cand[k2]
                             if c[j2] == 1:
+                                e2 = math.log(abs(w[j2])) if lsg[j2] != 0 and w[j2] != 0.0 else w[j2]
                                 jst[0, j1, j2] += 1.0
-                                jst[1, j1, j2] += w[j1]
-                                jst[2, j1, j2] += w[j1] * w[j2]
+                                jst[1, j1, j2] += e1
+                                jst[2, j1, j2] += e1 * e2
             if joint and adapt_every > 0 and (it + 1) % adapt_every == 0:
                 _adapt_joint(jcov, jst, jsc, sigma, cand)
             if mode == MODE_PBICRL:
                 for k in range(d):
                     if c[k] == 1:
+                        wk = math.log(abs(w[k])) if lsg[k] != 0 and w[k] != 0.0 else w[k]
                         ad[0, k] += 1
-                        ad[1, k] += w[k]
-                        ad[2, k] += w[k] * w[k]
+                        ad[1, k] += wk
+                        ad[2, k] += wk * wk
                         if k >= d_known:
                             for p in range(poff[k - d_known], poff[k - d_known + 1]):
                                 adt[0, p] += 1
@@ -500,7 +539,7 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
                         sigma[k] *= math.exp(ad[4, k] / ad[3, k] - 0.3)  # Robbins-Monro towards ~30% acceptance
                     ad[3, k] = 0
                     ad[4, k] = 0
-                    if mode == MODE_PBICRL and ad[0, k] >= 20:
+                    if mode == MODE_PBICRL and ad[0, k] >= 20:  # on eta = log|w| where lsg[k] != 0
                         mean = ad[1, k] / ad[0, k]
                         var = max(ad[2, k] / ad[0, k] - mean * mean, 0.0)
                         q_mu[k] = mean
@@ -566,7 +605,8 @@ def run_chunk(mode, n, it0, burn_in, thin, adapt_every, d_known, naive,
             LikelihoodArrays(lkind, brows, broff, bcols, bcoff, bm, pi_, pj, pm, sb, sQ, sQi, sE, sEi, gitems, goff,
                              gmarg, gbuf, moff),
             ConstraintArrays(fam, sign, poff, dims_off, dims, sorted_vals, states, offsets, inv_len, tlo, thi),
-            Moves(int(d_known), bool(naive), cand, float(p_flip), float(p_theta), int(f_s), float(p_joint)),
+            Moves(int(d_known), bool(naive), cand, float(p_flip), float(p_theta), int(f_s), float(p_joint),
+                  np.zeros(c.size, np.int64), np.ones(c.size)),
             Model(float(beta), float(power), float(log_odds), pkind, prm),
             Randoms(u_j, u_mv, z, u_acc, zt, zj),
             Adaptation(sigma, q_mu, q_s, sigma_t, qt_mu, qt_s, ad, adt, jcov, jst, jsc),

@@ -121,6 +121,13 @@ class Moves(NamedTuple):
     ``d_known`` known features come first (the rest are parametric constraints); ``cand`` are the features
     that may be constraints; ``p_flip``, ``p_theta``, ``p_joint``: move probabilities; ``f_s``: Algorithm 1's
     sampling frequency; ``naive``: recount every state on a parameter move (benchmark only).
+
+    ``log_sign`` (d,): ``pbicrl`` only, the sign of a feature whose weight moves on the log-magnitude scale
+    :math:`\eta = \log|w|` (-1 or +1, where the prior's support is one-signed and log moves are on; 0: moves on
+    :math:`w` itself). For such a feature the flip-and-draw proposal is an equal mixture of the adapted
+    :math:`\log|w| \sim \mathcal{N}(\mu_j, s_j^2)` of :class:`Adaptation` and a fixed defensive
+    :math:`|w| \sim U(0, b_j)` (``birth_bound``: the prior's 99% quantile of :math:`|w|`), which has the prior's
+    shape near 0, where a feature the data do not want puts its conditional posterior.
     """
 
     d_known: int
@@ -130,6 +137,8 @@ class Moves(NamedTuple):
     p_theta: float
     f_s: int
     p_joint: float
+    log_sign: NDArray[np.int64]
+    birth_bound: NDArray[np.float64]
 
 
 class Model(NamedTuple):

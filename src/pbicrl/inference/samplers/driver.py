@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import multiprocessing as mp
 import os
 import signal
@@ -36,11 +37,13 @@ import numpy as np
 
 from pbicrl.inference.codes import MOVE_FLIP, MOVE_NONE, MOVE_PARAMETER, MOVE_WEIGHT, MOVES
 from pbicrl.inference.constraints import ConstraintSet
+from pbicrl.inference.convergence import TARGET_ESS, TARGET_RHAT, Convergence, check_convergence, reported_quantities
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.results import Posterior
 from pbicrl.inference.samplers.kernels import ADAPT_EVERY, ChainState, Kernel, SamplerSettings, build_kernel
 
-__all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES"]
+__all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES",
+           "StoppingRule"]
 
 # Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
 _CHUNK = 20_000
@@ -374,6 +377,7 @@ def sample(
     feature_names: Sequence[str] | None = None,
     constraints: ConstraintSet | None = None,
     identified: Any = None,
+    stopping: "StoppingRule | None" = None,
     **overrides: Any,
 ) -> Posterior:
     """Sample the posterior with ``n_chains`` independent chains.
@@ -402,6 +406,10 @@ def sample(
     identified : Identification or dict, optional
         Result of :func:`pbicrl.analysis.identify.identify` for these data: recorded in ``summary.json`` and used for
         the warnings and the ``prior_driven`` flags.
+    stopping : StoppingRule, optional
+        Run until converged (``iterations = "auto"``): the chains run in rounds until every reported quantity
+        meets the rule's targets or its time is spent (see :class:`StoppingRule`); ``settings.n_iterations``,
+        ``burn_in`` and ``thin`` are then ignored. The verdict is ``Posterior.extra["convergence"]``.
 
     Raises
     ------
@@ -411,7 +419,8 @@ def sample(
         On Ctrl-C, after the worker processes have been stopped.
     """
     names = _feature_names(likelihood, feature_names)
-    kernel = build_kernel(likelihood, settings, constraints=constraints, **overrides)
+    kernel = build_kernel(likelihood, settings, constraints=constraints, min_penalty=_min_penalty(identified),
+                          **overrides)
     if int(n_chains) < 1:
         raise ValueError(f"chains: need at least 1 chain, got {n_chains}")
     seeds = np.random.SeedSequence(int(seed)).spawn(int(n_chains))
@@ -421,6 +430,8 @@ def sample(
             print(_COMPILE_NOTE, file=sys.stderr, flush=True)
         if n_jobs > 1:
             _compile_here(kernel)  # once here rather than once per worker
+    if stopping is not None:
+        return _sample_auto(kernel, stopping, seeds, n_jobs, progress, names, identified, int(seed))
     total = int(kernel.settings.n_iterations) * int(n_chains)
     bar = progress_bar(total, progress)
     t0 = time.perf_counter()
@@ -438,6 +449,23 @@ def sample(
     runtime = time.perf_counter() - t0
     return Posterior.from_chains(results, kernel=kernel, seed=int(seed), runtime_s=runtime, feature_names=names,
                                  identified=identified)
+
+
+def _min_penalty(identified: Any) -> list[float] | None:
+    """The separation scales :math:`m_j` of an identification (object or ``summary.json`` dict), NaN where none."""
+    if identified is None:
+        return None
+    mp = getattr(identified, "min_penalty", None)
+    if mp is not None and not callable(mp):
+        return [float(x) for x in np.asarray(mp, dtype=float)]
+    feats = identified.get("features") if isinstance(identified, dict) else None
+    if isinstance(feats, dict):
+        out = []
+        for v in feats.values():
+            x = v.get("min_penalty") if isinstance(v, dict) else None
+            out.append(float(x) if isinstance(x, (int, float)) else float("nan"))
+        return out
+    return None
 
 
 def _run_pool(kernel: Kernel, seeds: Sequence[np.random.SeedSequence], n_jobs: int, bar: Any) -> list[dict[str, Any]]:
@@ -487,9 +515,268 @@ class _LocalCounter:
             self.bar.update(self.value - self._before)
 
 
-def progress_bar(total: int, enabled: bool) -> Any:
+def progress_bar(total: int | None, enabled: bool) -> Any:
+    """A tqdm bar on stderr (``total`` None: a run until converged, whose rounds add the smallest ESS and the
+    largest R-hat so far)."""
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, unit="it", unit_scale=True, desc="sampling", leave=False, mininterval=0.5)
+    return tqdm(total=total, unit="it", unit_scale=True, desc="sampling" if total else "sampling until converged",
+                leave=False, mininterval=0.5)
+
+
+# ---------------------------------------------------------------------------------------------- run until converged
+@dataclasses.dataclass(frozen=True)
+class StoppingRule:
+    r"""Run until converged (``iterations = "auto"``): rounds of sampling until every reported quantity
+    (:mod:`pbicrl.inference.convergence`) has split :math:`\hat R` < ``target_rhat`` and bulk and tail ESS >=
+    ``target_ess``, or until ``max_time`` seconds are spent.
+
+    Attributes
+    ----------
+    target_ess : float
+        Bulk and tail ESS every reported quantity needs (over all chains).
+    target_rhat : float
+        Largest rank-normalised split :math:`\hat R`.
+    max_time : float
+        Seconds (wall) after which the run stops converged or not (the run then says which quantities fall short).
+    warmup : int
+        Warm-up iterations per chain (adaptation; not kept).
+    first_check : int
+        Kept iterations per chain before the first check.
+    max_draws : int
+        Kept draws stored per chain; longer runs are thinned evenly to this many.
+    """
+
+    target_ess: float = TARGET_ESS
+    target_rhat: float = TARGET_RHAT
+    max_time: float = 600.0
+    warmup: int = 2_000
+    first_check: int = 1_500
+    max_draws: int = 20_000
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.target_ess) and self.target_ess > 0):
+            raise ValueError(f"target_ess: must be a positive number, got {self.target_ess!r}")
+        if not (math.isfinite(self.target_rhat) and self.target_rhat > 1.0):
+            raise ValueError(f"target_rhat: must be a number > 1, got {self.target_rhat!r}")
+        if not (math.isfinite(self.max_time) and self.max_time > 0):
+            raise ValueError(f"max_time: must be a positive number of seconds, got {self.max_time!r}")
+        for name in ("warmup", "first_check", "max_draws"):
+            v = getattr(self, name)
+            if int(v) != v or v < (0 if name == "warmup" else 4):
+                raise ValueError(f"{name}: must be an integer >= {0 if name == 'warmup' else 4}, got {v!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+_AUTO_CHUNK = 2_000  # iterations between progress updates inside a round (does not change the chain)
+_DRAW_KEYS = ("indicators", "penalty_weights", "parameters", "log_likelihood", "log_prior", "move", "accepted",
+              "acceptance_fraction")
+
+
+def _auto_round(args: tuple[Kernel, ChainState, np.random.Generator, int, tuple[int, int]]) -> tuple[Any, ...]:
+    """Advance one chain ``n`` iterations; returns the new state and generator, the kept draws (with per-draw
+    statistics), the acceptance carry and the process time used."""
+    kernel, state, rng, n, carry = args
+    b = kernel.settings.burn_in_
+    it0 = int(state.iteration)
+    kept = max(0, it0 + n - max(it0, b))
+    stats = _DrawStats(kernel, kept)
+    stats._acc_since, stats._n_since = carry
+    out = kernel.new_buffers(kept)
+    t0 = time.process_time()
+    done = 0
+    while done < n:
+        m = min(_AUTO_CHUNK, n - done)
+        state = stats.run(rng, state, m, out)
+        done += m
+        if _progress_counter is not None:
+            with _progress_counter.get_lock():
+                _progress_counter.value += m
+    k = int(out[5][0])
+    draws = {"indicators": out.indicators[:k], "penalty_weights": out.penalty_weights[:k],
+             "parameters": out.parameters[:k], "log_likelihood": out.log_likelihood[:k],
+             "log_prior": out.log_prior[:k], "move": stats.move[:k], "accepted": stats.accepted[:k],
+             "acceptance_fraction": stats.fraction[:k]}
+    return state, rng, draws, (stats._acc_since, stats._n_since), time.process_time() - t0
+
+
+def _auto_worker(args: tuple[Any, ...]) -> tuple[Any, ...]:
+    return _auto_round(args)
+
+
+def _converged(kernel: Kernel, parts: list[dict[str, list[np.ndarray]]], names: Sequence[str] | None,
+               rule: StoppingRule, skip: Sequence[str]) -> tuple[Convergence, int]:
+    """The stopping rule on the kept draws so far, and how many leading draws per chain it discarded (the first
+    half, when the chains agree on the second half only: extended warm-up, no adaptation, so still valid)."""
+    def stack(key: str) -> np.ndarray:
+        return np.stack([np.concatenate(p[key]) for p in parts])
+
+    c, w, ll, th = stack("indicators"), stack("penalty_weights"), stack("log_likelihood"), stack("parameters")
+    d = c.shape[2]
+    fnames = list(names) if names is not None else [f"f{j}" for j in range(kernel.d_known)]
+    if kernel.constraints is not None:
+        fnames += list(kernel.constraints.names)
+    fnames = fnames[:d]
+    pnames = None
+    if kernel.constraints is not None and th.shape[2]:
+        pnames = [f"{cn}.{pn}" for cn, con in zip(kernel.constraints.names, kernel.constraints.constraints)
+                  for pn in getattr(con, "param_names", [f"p{k}" for k in range(con.n_params)])]
+        if len(pnames) != th.shape[2]:
+            pnames = None
+
+    def verdict(lo: int) -> Convergence:
+        q = reported_quantities(c[:, lo:], w[:, lo:], ll[:, lo:], fnames, th[:, lo:] if th.shape[2] else None,
+                                pnames, skip=skip)
+        return check_convergence(q, target_ess=rule.target_ess, target_rhat=rule.target_rhat)
+
+    full = verdict(0)
+    n = c.shape[1]
+    if not full.converged and full.max_rhat > rule.target_rhat and n >= 2 * rule.first_check:
+        half = verdict(n // 2)
+        if half.converged:
+            return half, n // 2
+    return full, 0
+
+
+def _skip_names(identified: Any) -> list[str]:
+    """Features the data carry no information about (identify's ``identifiable`` False): not diagnosed."""
+    feats = None
+    if identified is not None and not isinstance(identified, dict):
+        try:
+            return [f.name for f in identified.features if not f.identifiable]
+        except AttributeError:
+            return []
+    if isinstance(identified, dict):
+        feats = identified.get("features")
+    if isinstance(feats, dict):
+        return [k for k, v in feats.items() if isinstance(v, dict) and v.get("identifiable") is False]
+    return []
+
+
+def _sample_auto(kernel: Kernel, rule: StoppingRule, seeds: Sequence[np.random.SeedSequence], n_jobs: int,
+                 progress: bool, names: Sequence[str] | None, identified: Any, seed: int) -> Posterior:
+    """:func:`sample` with a :class:`StoppingRule`: rounds until converged or out of time."""
+    s = kernel.settings
+    big = 1 << 60
+    kernel = dataclasses.replace(kernel, settings=dataclasses.replace(s, n_iterations=big, burn_in=int(rule.warmup),
+                                                                      thin=1))
+    skip = _skip_names(identified)
+    rngs = [np.random.default_rng(sd) for sd in seeds]
+    states = [kernel.init(r) for r in rngs]
+    carries = [(0, 0)] * len(seeds)
+    parts: list[dict[str, list[np.ndarray]]] = [{k: [] for k in _DRAW_KEYS} for _ in seeds]
+    cpu = np.zeros(len(seeds))
+    bar = progress_bar(None, progress)
+    t0 = time.perf_counter()
+    pool = counter = None
+    if n_jobs > 1:
+        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
+        counter = ctx.Value("q", 0)
+        pool = ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx, initializer=_init_worker,
+                                   initargs=(counter, os.getpid()))
+    n_round = int(rule.warmup) + int(rule.first_check)
+    done = 0
+    conv: Convergence | None = None
+    discard = 0
+    rounds = 0
+    try:
+        while True:
+            tasks = [(kernel, st, r, n_round, cy) for st, r, cy in zip(states, rngs, carries)]
+            t_round = time.perf_counter()
+            outs = _run_round(tasks, pool, counter, bar, done * len(seeds), t0)
+            rounds += 1
+            for k, (st, r, dr, cy, pt) in enumerate(outs):
+                states[k], rngs[k], carries[k] = st, r, cy
+                cpu[k] += pt
+                for key in _DRAW_KEYS:
+                    parts[k][key].append(dr[key])
+            done += n_round
+            kept = done - int(rule.warmup)
+            conv, discard = _converged(kernel, parts, names, rule, skip)
+            elapsed = time.perf_counter() - t0
+            if bar is not None:
+                if hasattr(bar, "set_convergence"):  # the labelling page's reporter
+                    bar.set_convergence(conv.min_ess, rule.target_ess, conv.max_rhat, elapsed)
+                else:
+                    bar.set_postfix_str(f"min ESS {conv.min_ess:.0f}/{rule.target_ess:g}, max R-hat "
+                                        f"{conv.max_rhat:.3f}, {elapsed:.0f}s", refresh=True)
+            if conv.converged or elapsed >= rule.max_time:
+                break
+            rate = n_round / max(time.perf_counter() - t_round, 1e-9)  # iterations per chain per second
+            ess = conv.min_ess if math.isfinite(conv.min_ess) and conv.min_ess > 0 else 1.0
+            need = kept * (rule.target_ess / ess - 1.0) * 1.15 if conv.max_rhat < rule.target_rhat else kept
+            n_round = int(max(need, 0.25 * kept, 200))
+            n_round = min(n_round, int(kept), int(max(rate * (rule.max_time - elapsed), 100)))
+            n_round = max(n_round, 100)
+    except BaseException:
+        if pool is not None:
+            stop_pool(pool)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    if pool is not None:
+        pool.shutdown(wait=True)
+    runtime = time.perf_counter() - t0
+    assert conv is not None
+    kept = done - int(rule.warmup)
+    keep_n = kept - discard
+    stride = max(1, -(-keep_n // int(rule.max_draws)))
+    results = []
+    for k, st in enumerate(states):
+        r: dict[str, Any] = {key: np.concatenate(parts[k][key])[discard::stride] for key in _DRAW_KEYS}
+        best, adapt = st.best, st.adaptation
+        r.update({"map_indicators": best.indicators, "map_penalty_weights": best.penalty_weights,
+                  "map_parameters": best.parameters, "map_log_posterior": st.map_log_posterior,
+                  "map_log_likelihood": st.map_log_likelihood, "counts": st.counts, "sigma": adapt.sigma,
+                  "q_mean": adapt.q_mean, "q_scale": adapt.q_scale, "sigma_theta": adapt.sigma_theta,
+                  "runtime_s": float(cpu[k])})
+        results.append(r)
+    final = dataclasses.replace(kernel, settings=dataclasses.replace(
+        kernel.settings, n_iterations=int(done), burn_in=int(rule.warmup) + int(discard), thin=int(stride)))
+    post = Posterior.from_chains(results, kernel=final, seed=seed, runtime_s=runtime, feature_names=names,
+                                 identified=identified, issue_warnings=False)
+    post.extra["convergence"] = conv.to_dict() | {
+        "iterations": "auto", "iterations_run": int(done), "rounds": rounds, "discarded_after_warmup": int(discard),
+        "wall_s": runtime, "stopping_rule": rule.to_dict(),
+        "note": ("conditional summaries are checked through the indicators 1[c=1, w <= q] at the conditional "
+                 "5/50/95% quantiles (defined for every draw), and for selected features also on log|w| while "
+                 "active; see pbicrl.inference.convergence")}
+    post.emit_warnings(stacklevel=4)
+    return post
+
+
+def _run_round(tasks: list[tuple[Any, ...]], pool: Any, counter: Any, bar: Any, base: int,
+               t0: float) -> list[tuple[Any, ...]]:
+    """Run one round of every chain, in the pool or here, updating the progress bar as iterations complete."""
+    if pool is None:
+        local = _LocalCounter(bar)
+        global _progress_counter
+        saved = _progress_counter
+        _progress_counter = local
+        try:
+            return [_auto_round(t) for t in tasks]
+        finally:
+            _progress_counter = saved
+    start = counter.value
+    futures = [pool.submit(_auto_worker, t) for t in tasks]
+    last = start
+    while not all(f.done() for f in futures):
+        time.sleep(0.1)
+        v = counter.value
+        if bar is not None and v != last:
+            bar.update(v - last)
+            last = v
+    try:
+        outs = [f.result() for f in futures]
+    except BrokenProcessPool:
+        raise RuntimeError("sampling: a chain worker process died (killed for memory, or by a signal); "
+                           "rerun with fewer --jobs or chains") from None
+    if bar is not None:
+        bar.update(counter.value - last)
+    return outs
+

@@ -119,6 +119,14 @@ class SamplerSettings:
         whose covariance is adapted to the chain during warm-up (adaptive Metropolis within the reversible jump;
         fixed afterwards, so the kept draws come from a valid kernel). It pays when weights are correlated and
         many (large data); taken from the single-weight steps' share. Default 0: the single-site moves only.
+    log_moves : bool or None
+        ``pbicrl``: move every weight whose prior support is one-signed (the default half-t on
+        :math:`(-\infty, 0]`, a box :math:`[a, 0]`) on the log-magnitude scale :math:`\eta = \log|w|`: random-walk
+        steps on :math:`\eta` (Jacobian included) and flip-and-draw proposals that are normal mixtures on
+        :math:`\eta`. A penalty the rankings bound from one side has a posterior that is the prior's heavy tail
+        above the separation scale; steps proportional to the magnitude cross it in a few moves where fixed steps
+        need thousands. Default: on for ``pbicrl`` (``False``: the moves on :math:`w` of earlier releases, which the
+        chain reference keeps). Ignored by the other samplers.
     """
 
     method: Literal["pbicrl", "paper", "authors", "bpl"] = "pbicrl"
@@ -138,6 +146,7 @@ class SamplerSettings:
     p_theta: float | None = None
     naive_counts: bool = False
     p_joint: float = 0.0
+    log_moves: bool | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -200,6 +209,10 @@ class SamplerSettings:
     def adapt_(self) -> bool:
         return self.method == "pbicrl" if self.adapt is None else bool(self.adapt)
 
+    @property
+    def log_moves_(self) -> bool:
+        return self.method == "pbicrl" and (self.log_moves is None or bool(self.log_moves))
+
     def to_dict(self) -> dict:
         return {"method": self.method, "iterations": int(self.n_iterations), "burn_in": self.burn_in_,
                 "thin": self.thin_, "sigma": self.sigma, "f_s": self.f_s, "p_flip": self.p_flip,
@@ -207,7 +220,8 @@ class SamplerSettings:
                 "init_range": list(self.init_range) if self.method == "authors" else None, "weight_prior": self.weight_prior.to_dict(),
                 "indicator_prior": {"pi": self.indicator_prior.pi},
                 "candidates": None if self.candidates is None else list(self.candidates),
-                "sigma_theta": self.sigma_theta, "p_theta": self.p_theta, "p_joint": float(self.p_joint)}
+                "sigma_theta": self.sigma_theta, "p_theta": self.p_theta, "p_joint": float(self.p_joint),
+                "log_moves": self.log_moves_}
 
 
 def _field(bundle: str, name: str, doc: str) -> property:
@@ -305,6 +319,10 @@ class Kernel:
     likelihood: PreferenceLikelihood
     settings: SamplerSettings
     constraints: ConstraintSet | None = None
+    min_penalty: tuple[float, ...] | None = None
+    r"""Per feature, the separation scale :math:`|w_p| \ge m_j` the rankings require (``identify``; NaN or 0 where
+    none): centres the first birth proposals of the log-magnitude moves, so a penalty the data require is proposed
+    where the data put it whatever the prior says. Only affects how fast warm-up finds the posterior."""
 
     @property
     def d_known(self) -> int:
@@ -478,6 +496,12 @@ class Kernel:
         else:
             q_mean, q_sd = qprior.proposal()
             q_scale = np.maximum(10.0 * sigma, q_sd)
+        lsg, _, mu_a, s_a = self._log_proposals
+        if lsg.any():  # log-magnitude moves: steps and proposals on eta = log|w|
+            on_log = lsg != 0
+            sigma = np.where(on_log, 0.5, sigma)
+            q_mean = np.where(on_log, mu_a, q_mean)
+            q_scale = np.where(on_log, s_a, q_scale)
         return ChainState(
             position=Position(c, w, theta.copy(), a, FbT, np.array([ll, lp])),
             iteration=0,
@@ -528,10 +552,47 @@ class Kernel:
                      np.zeros(n_draws), np.zeros(n_draws), np.zeros(1, np.int64))
 
     @cached_property
+    def _log_proposals(self) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64],
+                                      NDArray[np.float64], NDArray[np.float64]]:
+        r"""``(log_sign, birth_bound, qa_mean, qa_scale)`` of the log-magnitude moves (:class:`Moves`).
+
+        The defensive birth component is :math:`|w| \sim U(0, b_j)` with :math:`b_j` the prior's 99% quantile of
+        :math:`|w|`; the adapted component :math:`\log|w| \sim \mathcal{N}(\mu_j, s_j^2)` starts at the prior's
+        median with the spread of its 1%-99% range, or, where the rankings require a penalty (``min_penalty``
+        :math:`m_j > 0`), just above the separation scale (:math:`\log m_j + 0.5`, sd 1), since the posterior of a
+        required penalty starts at :math:`m_j`.
+        """
+        d = self.n_features
+        zero = (np.zeros(d, np.int64), np.ones(d), np.zeros(d), np.ones(d))
+        if not self.settings.log_moves_:
+            return zero
+        prior = self.resolved_prior
+        lsg = np.where(prior.high <= 0.0, -1, np.where(prior.low >= 0.0, 1, 0)).astype(np.int64)
+        lsg[(prior.high <= 0.0) & (prior.low >= 0.0)] = 0  # a point mass at 0: nothing to move
+        if not lsg.any():
+            return zero
+        qs = np.abs(prior.ppf(np.array([0.01, 0.5, 0.99])))  # (3, d)
+        tiny = np.finfo(float).tiny
+        lq = np.log(np.maximum(qs, tiny))
+        bound = np.maximum(qs[0], qs[2])
+        mu_a = lq[1]
+        s_a = np.maximum(np.abs(lq[2] - lq[0]) / 4.65, 0.5)  # the 1%-99% range of a normal is 4.65 sd
+        if self.min_penalty is not None:
+            mp = np.full(d, np.nan)
+            mp[:min(d, len(self.min_penalty))] = np.asarray(self.min_penalty, dtype=float)[:d]
+            req = np.isfinite(mp) & (mp > 0)
+            mu_a[req] = np.log(mp[req]) + 0.5
+            s_a[req] = 1.0
+        bad = ~(np.isfinite(mu_a) & np.isfinite(s_a) & np.isfinite(bound) & (bound > 0))
+        lsg[bad] = 0
+        return lsg, np.where(bad, 1.0, bound), mu_a, s_a
+
+    @cached_property
     def _moves(self) -> Moves:
         s = self.settings
+        lsg, bound, _, _ = self._log_proposals
         return Moves(int(self.d_known), bool(s.naive_counts), self._cand, float(s.p_flip), float(self.p_theta_),
-                     int(s.f_s), float(s.p_joint))
+                     int(s.f_s), float(s.p_joint), lsg, bound)
 
     @cached_property
     def _model(self) -> Model:
@@ -591,12 +652,15 @@ def _copy_state(s: ChainState) -> ChainState:
 
 
 def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | None = None, *,
-                 constraints: ConstraintSet | None = None, **overrides) -> Kernel:
-    """Bind settings to a likelihood: ``build_kernel(lik, method="bpl", sigma=0.5)``."""
+                 constraints: ConstraintSet | None = None, min_penalty: Any = None, **overrides) -> Kernel:
+    """Bind settings to a likelihood: ``build_kernel(lik, method="bpl", sigma=0.5)``.
+
+    ``min_penalty`` (d,): the separation scales of ``identify`` (see :attr:`Kernel.min_penalty`)."""
     settings = SamplerSettings() if settings is None else settings
     if overrides:
         settings = replace(settings, **overrides)
-    kernel = Kernel(likelihood, settings, constraints)
+    mp = None if min_penalty is None else tuple(float(x) if x is not None else float("nan") for x in min_penalty)
+    kernel = Kernel(likelihood, settings, constraints, mp)
     if constraints is not None and constraints.dataset.n_trajectories != likelihood.mean_features.shape[0]:
         raise ValueError("constraints: built on a dataset with a different number of trajectories than the likelihood")
     kernel._cand  # validate candidates now  # noqa: B018
