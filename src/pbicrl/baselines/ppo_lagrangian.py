@@ -82,14 +82,19 @@ class PPOLagConfig:
         Step size and initial value of the multiplier.
     lagrange_max : float
         Upper clip of the multiplier (keeps the combined advantage from vanishing).
+    lagrange_min : float
+        Lower clip of the multiplier (default 0). The ICRL benchmark's PPO-Lagrangian never lets the multiplier
+        fall below its initial value :math:`\\nu_0`; set ``lagrange_min = lagrange_init`` for that.
     normalize_obs, scale_reward : bool
         Running observation normalisation; reward scaling by the running std of the discounted return.
     torch_threads : int
         ``torch.set_num_threads`` (1: fastest for these small networks on a shared CPU).
-    episode_cost : {"discounted", "sum"}
+    episode_cost : {"discounted", "sum", "step"}
         What the multiplier compares with ``cost_budget``: the discounted episode cost
-        :math:`\\sum_t \\gamma_c^t c_t` (default, as ICL) or its plain sum :math:`\\sum_t c_t` (a budget on
-        the expected cost per episode; the cost critic stays discounted with ``cost_gamma``).
+        :math:`\\sum_t \\gamma_c^t c_t` (default, as ICL), its plain sum :math:`\\sum_t c_t` (a budget on
+        the expected cost per episode; the cost critic stays discounted with ``cost_gamma``), or ``"step"``, the
+        mean per-step cost of the rollout (as the ICRL benchmark's PPO-Lagrangian; every rollout updates the
+        multiplier, whether or not an episode finished in it).
     """
 
     n_envs: int = 4
@@ -115,6 +120,7 @@ class PPOLagConfig:
     scale_reward: bool = True
     torch_threads: int = 1
     episode_cost: str = "discounted"
+    lagrange_min: float = 0.0
 
     def validate(self) -> PPOLagConfig:
         """Check every option; raise ValueError naming the bad one. Returns self."""
@@ -130,12 +136,15 @@ class PPOLagConfig:
             v = getattr(self, name)
             if not (math.isfinite(float(v)) and float(v) > 0):
                 raise ValueError(f"ppo.{name}: must be a finite number > 0, got {v!r}")
-        for name in ("cost_budget", "lagrange_init", "ent_coef", "vf_coef"):
+        for name in ("cost_budget", "lagrange_init", "ent_coef", "vf_coef", "lagrange_min"):
             v = getattr(self, name)
             if not (math.isfinite(float(v)) and float(v) >= 0):
                 raise ValueError(f"ppo.{name}: must be a finite number >= 0, got {v!r}")
-        if self.episode_cost not in ("discounted", "sum"):
-            raise ValueError(f"ppo.episode_cost: must be 'discounted' or 'sum', got {self.episode_cost!r}")
+        if self.episode_cost not in ("discounted", "sum", "step"):
+            raise ValueError(f"ppo.episode_cost: must be 'discounted', 'sum' or 'step', got {self.episode_cost!r}")
+        if float(self.lagrange_min) > float(self.lagrange_max):
+            raise ValueError(f"ppo.lagrange_min: must be <= lagrange_max ({self.lagrange_max}), "
+                             f"got {self.lagrange_min!r}")
         if self.target_kl is not None and not float(self.target_kl) > 0:
             raise ValueError(f"ppo.target_kl: must be > 0 or None, got {self.target_kl!r}")
         hidden = tuple(int(h) for h in self.hidden)
@@ -152,18 +161,22 @@ class PPOLagConfig:
             # absent at its default, so configs (and the hashes and checkpoints keyed on them) made before
             # the option existed stay equal
             del d["episode_cost"]
+        if d["lagrange_min"] == 0.0:
+            del d["lagrange_min"]  # likewise
         return d
 
 
-def lagrange_update(lam: float, expected_cost: float, budget: float, lr: float, lam_max: float = math.inf) -> float:
+def lagrange_update(lam: float, expected_cost: float, budget: float, lr: float, lam_max: float = math.inf,
+                    lam_min: float = 0.0) -> float:
     """One projected gradient-ascent step of the Lagrange multiplier on the dual.
 
-    :math:`\\lambda \\leftarrow \\min(\\lambda_{max}, \\max(0, \\lambda + \\eta (\\hat J_c - \\beta)))`: the
-    multiplier grows while the expected discounted cost exceeds the budget and shrinks otherwise.
+    :math:`\\lambda \\leftarrow \\min(\\lambda_{max}, \\max(\\lambda_{min}, \\lambda + \\eta (\\hat J_c - \\beta)))`
+    (:math:`\\lambda_{min} = 0` by default): the multiplier grows while the expected discounted cost exceeds the
+    budget and shrinks otherwise.
     """
     if not (math.isfinite(expected_cost) and math.isfinite(budget)):
         raise ValueError(f"lagrange_update: cost {expected_cost} and budget {budget} must be finite")
-    return float(min(lam_max, max(0.0, lam + lr * (expected_cost - budget))))
+    return float(min(lam_max, max(lam_min, lam + lr * (expected_cost - budget))))
 
 
 def discounted_sum(values: NDArray[np.float64], gamma: float) -> float:
@@ -329,12 +342,19 @@ class PPOLagrangian:
         self._ep_costs: list[list[float]] = [[] for _ in self.envs]
         self._ep_max = np.full(len(self.envs), -np.inf)
 
-    def act(self, obs: NDArray, deterministic: bool = False) -> NDArray[np.float64]:
-        """Action (clipped to the action space) for raw observations of shape (n, obs_dim)."""
+    def act(self, obs: NDArray, deterministic: bool = False,
+            generator: torch.Generator | None = None) -> NDArray[np.float64]:
+        """Action (clipped to the action space) for raw observations of shape (n, obs_dim); a stochastic action
+        draws its noise from ``generator`` when given (torch's global generator otherwise)."""
         x = torch.as_tensor(self._norm(np.atleast_2d(np.asarray(obs, dtype=np.float64))), dtype=torch.float32)
         with torch.no_grad():
             d = self.ac.dist(x)
-            a = d.mean if deterministic else d.sample()
+            if deterministic:
+                a = d.mean
+            elif generator is None:
+                a = d.sample()
+            else:
+                a = d.mean + d.stddev * torch.randn(d.mean.shape, generator=generator)
         return np.clip(a.numpy().astype(np.float64), self.act_low, self.act_high)
 
     # ------------------------------------------------------------------ rollout
@@ -498,9 +518,12 @@ class PPOLagrangian:
             batch = self._rollout()
             fc = batch["finished_costs"]
             lam_before = self.lam
-            if fc.size:
+            if self.cfg.episode_cost == "step":
+                self.lam = lagrange_update(self.lam, batch["mean_cost"], self.cfg.cost_budget, self.cfg.lagrange_lr,
+                                           self.cfg.lagrange_max, self.cfg.lagrange_min)
+            elif fc.size:
                 self.lam = lagrange_update(self.lam, float(fc.mean()), self.cfg.cost_budget, self.cfg.lagrange_lr,
-                                           self.cfg.lagrange_max)
+                                           self.cfg.lagrange_max, self.cfg.lagrange_min)
             info = self._update(batch)
             recent = slice(-max(1, len(fc)) if fc.size else -10, None)
             info.update(steps=self.num_steps, lam=lam_before, lam_next=self.lam,
