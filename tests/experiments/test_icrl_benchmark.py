@@ -14,7 +14,7 @@ pytest.importorskip("mujoco")
 
 import gymnasium as gym  # noqa: E402
 
-from pbicrl.baselines.ppo_lagrangian import PPOLagConfig, lagrange_update  # noqa: E402
+from pbicrl.baselines.ppo_lagrangian import PPOLagConfig, lagrange_adam_update, lagrange_update  # noqa: E402
 from pbicrl.experiments.icrl_benchmark import (  # noqa: E402
     EpisodeRecorder,
     episode_metrics,
@@ -77,6 +77,7 @@ def test_expert_config_follows_the_note():
     assert hc.lagrange_init == hc.lagrange_min == 1.0 and hc.lagrange_lr == 0.1 and hc.cost_budget == 0.0
     ant = expert_config("ant", "ppo_lag_true")
     assert (ant.lr, ant.n_epochs, ant.minibatch_size, ant.gae_lambda, ant.lagrange_min) == (3e-5, 20, 128, 0.9, 0.1)
+    assert hc.lagrange_optimizer == "adam" and hc.scale_cost and hc.episode_cost == "step"
     ppo = expert_config("halfcheetah", "ppo")
     assert ppo.lagrange_init == ppo.lagrange_min == 0.0
     with pytest.raises(ValueError, match="method: unknown"):
@@ -84,7 +85,10 @@ def test_expert_config_follows_the_note():
 
 
 def test_ppolag_lower_bound_keeps_old_hashes():
-    assert "lagrange_min" not in PPOLagConfig().to_dict()  # configs made before the option hash as before
+    d = PPOLagConfig().to_dict()  # configs made before the options hash as before
+    assert not {"lagrange_min", "lagrange_optimizer", "scale_cost"} & set(d)
+    with pytest.raises(ValueError, match="lagrange_optimizer"):
+        PPOLagConfig(lagrange_optimizer="rmsprop").validate()
     assert PPOLagConfig(lagrange_min=0.5, lagrange_init=0.5).to_dict()["lagrange_min"] == 0.5
     assert lagrange_update(1.0, 0.0, 0.5, 0.1) == pytest.approx(0.95)
     assert lagrange_update(1.0, 0.0, 0.5, 10.0, lam_min=0.7) == 0.7
@@ -173,3 +177,27 @@ def test_cli_rejects_bad_jobs(capsys, tmp_path):
     assert "TASK:METHOD:SEED:STEPS" in capsys.readouterr().err
     assert main(["--out", str(tmp_path), "--run", "hopper:ppo:0:100"]) == 2
     assert "unknown ICRL benchmark task" in capsys.readouterr().err
+
+
+def test_adam_multiplier_on_the_softplus_preactivation():
+    def softplus(t):
+        return float(np.log1p(np.exp(t)))
+
+    st: dict = {}
+    theta0 = float(np.log(np.expm1(1.0)))
+    lam = lagrange_adam_update(1.0, 0.3, 0.0, 0.1, st, lam_min=1.0)
+    assert lam == pytest.approx(softplus(theta0 + 0.1), rel=1e-6)  # Adam's first step: lr * sign
+    assert st["t"] == 1 and st["m"] < 0
+    lam2 = lagrange_adam_update(lam, 0.001, 0.0, 0.1, st, lam_min=1.0)  # a tiny cost still raises it (Adam scales)
+    assert lam2 > lam + 0.03  # a plain gradient step would add 0.1 * 0.001 * sigmoid(theta) < 1e-4
+    down = lagrange_adam_update(1.05, 0.0, 0.5, 0.1, {}, lam_min=1.0)  # under budget: falls, but not below nu_0
+    assert down == 1.0
+    assert lagrange_adam_update(5.0, 1.0, 0.0, 10.0, {}, lam_max=6.0) == 6.0
+
+
+def test_adam_multiplier_and_cost_scale_survive_a_checkpoint(tmp_path):
+    run = train_policy("pendulum", "ppo_lag_true", 0, tmp_path, 256, config_overrides=SMALL, checkpoint_every=1,
+                       eval_every=100, eval_episodes=1, log=None)
+    ag = load_run_checkpoint(run / "checkpoint.pt")["agent"]
+    assert ag["lam_adam"]["t"] == 2 and ag["cost_rms"]["count"] > 1
+    assert ag["config"]["lagrange_optimizer"] == "adam" and ag["config"]["scale_cost"] is True

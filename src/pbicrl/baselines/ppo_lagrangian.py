@@ -44,6 +44,7 @@ __all__ = [
     "RunningMeanStd",
     "discounted_sum",
     "gae",
+    "lagrange_adam_update",
     "lagrange_update",
 ]
 
@@ -85,6 +86,15 @@ class PPOLagConfig:
     lagrange_min : float
         Lower clip of the multiplier (default 0). The ICRL benchmark's PPO-Lagrangian never lets the multiplier
         fall below its initial value :math:`\\nu_0`; set ``lagrange_min = lagrange_init`` for that.
+    lagrange_optimizer : {"sgd", "adam"}
+        ``"sgd"`` (default): the projected gradient step of :func:`lagrange_update`. ``"adam"``: the ICRL
+        benchmark's dual variable, :math:`\\lambda = \\mathrm{softplus}(\\theta)` with one Adam step (learning rate
+        ``lagrange_lr``, betas 0.9/0.999) on :math:`\\theta` per rollout for the loss
+        :math:`-\\lambda(\\hat J_c - \\beta)`, then :math:`\\lambda` clipped to [``lagrange_min``, ``lagrange_max``]
+        (:func:`lagrange_adam_update`).
+    scale_cost : bool
+        Divide the costs seen by the cost critic by the running std of the discounted cost return (clip 10), as the
+        ICRL benchmark does (default False). The multiplier always sees the raw costs.
     normalize_obs, scale_reward : bool
         Running observation normalisation; reward scaling by the running std of the discounted return.
     torch_threads : int
@@ -121,6 +131,8 @@ class PPOLagConfig:
     torch_threads: int = 1
     episode_cost: str = "discounted"
     lagrange_min: float = 0.0
+    lagrange_optimizer: str = "sgd"
+    scale_cost: bool = False
 
     def validate(self) -> PPOLagConfig:
         """Check every option; raise ValueError naming the bad one. Returns self."""
@@ -142,6 +154,8 @@ class PPOLagConfig:
                 raise ValueError(f"ppo.{name}: must be a finite number >= 0, got {v!r}")
         if self.episode_cost not in ("discounted", "sum", "step"):
             raise ValueError(f"ppo.episode_cost: must be 'discounted', 'sum' or 'step', got {self.episode_cost!r}")
+        if self.lagrange_optimizer not in ("sgd", "adam"):
+            raise ValueError(f"ppo.lagrange_optimizer: must be 'sgd' or 'adam', got {self.lagrange_optimizer!r}")
         if float(self.lagrange_min) > float(self.lagrange_max):
             raise ValueError(f"ppo.lagrange_min: must be <= lagrange_max ({self.lagrange_max}), "
                              f"got {self.lagrange_min!r}")
@@ -161,8 +175,9 @@ class PPOLagConfig:
             # absent at its default, so configs (and the hashes and checkpoints keyed on them) made before
             # the option existed stay equal
             del d["episode_cost"]
-        if d["lagrange_min"] == 0.0:
-            del d["lagrange_min"]  # likewise
+        for key, default in (("lagrange_min", 0.0), ("lagrange_optimizer", "sgd"), ("scale_cost", False)):
+            if d[key] == default:
+                del d[key]  # likewise
         return d
 
 
@@ -177,6 +192,29 @@ def lagrange_update(lam: float, expected_cost: float, budget: float, lr: float, 
     if not (math.isfinite(expected_cost) and math.isfinite(budget)):
         raise ValueError(f"lagrange_update: cost {expected_cost} and budget {budget} must be finite")
     return float(min(lam_max, max(lam_min, lam + lr * (expected_cost - budget))))
+
+
+def lagrange_adam_update(lam: float, expected_cost: float, budget: float, lr: float, state: dict[str, float],
+                         lam_max: float = math.inf, lam_min: float = 0.0) -> float:
+    """One Adam step of a softplus-parametrised multiplier (the ICRL benchmark's dual variable).
+
+    :math:`\\lambda = \\log(1 + e^\\theta)`; the loss :math:`-\\lambda(\\hat J_c - \\beta)` has gradient
+    :math:`g = -(\\hat J_c - \\beta)\\,\\sigma(\\theta)`; Adam (betas 0.9, 0.999, eps 1e-8) moves :math:`\\theta`,
+    whose first and second moments and step count live in ``state`` (keys ``m``, ``v``, ``t``; updated in
+    place). The result is clipped to [``lam_min``, ``lam_max``].
+    """
+    if not (math.isfinite(expected_cost) and math.isfinite(budget)):
+        raise ValueError(f"lagrange_adam_update: cost {expected_cost} and budget {budget} must be finite")
+    lam = max(float(lam), 1e-12)
+    theta = lam + math.log(-math.expm1(-lam))  # inverse softplus
+    g = -(expected_cost - budget) / (1.0 + math.exp(-theta))
+    t = int(state.get("t", 0)) + 1
+    m = 0.9 * float(state.get("m", 0.0)) + 0.1 * g
+    v = 0.999 * float(state.get("v", 0.0)) + 0.001 * g * g
+    state.update(m=m, v=v, t=t)
+    theta -= lr * (m / (1 - 0.9**t)) / (math.sqrt(v / (1 - 0.999**t)) + 1e-8)
+    new = theta + math.log1p(math.exp(-theta)) if theta > 0 else math.log1p(math.exp(theta))
+    return float(min(lam_max, max(lam_min, new)))
 
 
 def discounted_sum(values: NDArray[np.float64], gamma: float) -> float:
@@ -311,6 +349,8 @@ class PPOLagrangian:
         self.opt = torch.optim.Adam(self.ac.parameters(), lr=self.cfg.lr, eps=1e-5)
         self.obs_rms = RunningMeanStd((self.obs_dim,))
         self.ret_rms = RunningMeanStd(())
+        self.cost_rms = RunningMeanStd(())  # scale_cost only
+        self.lam_adam: dict[str, float] = {"m": 0.0, "v": 0.0, "t": 0}  # lagrange_optimizer="adam" only
         self.lam = float(self.cfg.lagrange_init)
         self.num_steps = 0
         self.num_updates = 0
@@ -339,6 +379,7 @@ class PPOLagrangian:
         self._ep_ret = np.zeros(len(self.envs))
         self._ep_len = np.zeros(len(self.envs), dtype=np.int64)
         self._ret_acc = np.zeros(len(self.envs))
+        self._cost_acc = np.zeros(len(self.envs))
         self._ep_costs: list[list[float]] = [[] for _ in self.envs]
         self._ep_max = np.full(len(self.envs), -np.inf)
 
@@ -451,7 +492,15 @@ class PPOLagrangian:
         else:
             rew_scaled = rew_buf
         adv_r, ret_r = gae(rew_scaled + boot_r, val_buf, done_buf, lv.numpy().astype(np.float64), cfg.gamma, cfg.gae_lambda)
-        adv_c, ret_c = gae(cost + boot_c, cval_buf, done_buf, lvc.numpy().astype(np.float64), cfg.cost_gamma,
+        if cfg.scale_cost:
+            for t in range(T):
+                self._cost_acc = self._cost_acc * cfg.cost_gamma + cost[t]
+                self.cost_rms.update(self._cost_acc)
+                self._cost_acc[done_buf[t] > 0] = 0.0
+            cost_seen = np.clip(cost / float(np.sqrt(self.cost_rms.var + 1e-8)), -10.0, 10.0)
+        else:
+            cost_seen = cost
+        adv_c, ret_c = gae(cost_seen + boot_c, cval_buf, done_buf, lvc.numpy().astype(np.float64), cfg.cost_gamma,
                            cfg.gae_lambda)
         return {"obs": obs_buf.reshape(T * E, -1), "act": act_buf.reshape(T * E, -1), "logp": logp_buf.reshape(-1),
                 "adv_r": adv_r.reshape(-1), "ret_r": ret_r.reshape(-1), "adv_c": adv_c.reshape(-1),
@@ -518,11 +567,12 @@ class PPOLagrangian:
             batch = self._rollout()
             fc = batch["finished_costs"]
             lam_before = self.lam
-            if self.cfg.episode_cost == "step":
-                self.lam = lagrange_update(self.lam, batch["mean_cost"], self.cfg.cost_budget, self.cfg.lagrange_lr,
-                                           self.cfg.lagrange_max, self.cfg.lagrange_min)
-            elif fc.size:
-                self.lam = lagrange_update(self.lam, float(fc.mean()), self.cfg.cost_budget, self.cfg.lagrange_lr,
+            jc = batch["mean_cost"] if self.cfg.episode_cost == "step" else (float(fc.mean()) if fc.size else None)
+            if jc is not None and self.cfg.lagrange_optimizer == "adam":
+                self.lam = lagrange_adam_update(self.lam, jc, self.cfg.cost_budget, self.cfg.lagrange_lr,
+                                                self.lam_adam, self.cfg.lagrange_max, self.cfg.lagrange_min)
+            elif jc is not None:
+                self.lam = lagrange_update(self.lam, jc, self.cfg.cost_budget, self.cfg.lagrange_lr,
                                            self.cfg.lagrange_max, self.cfg.lagrange_min)
             info = self._update(batch)
             recent = slice(-max(1, len(fc)) if fc.size else -10, None)
@@ -541,7 +591,9 @@ class PPOLagrangian:
         """Everything needed to resume (networks, optimiser, normalisers, multiplier, counters)."""
         return {"ac": self.ac.state_dict(), "opt": self.opt.state_dict(), "obs_rms": self.obs_rms.state(),
                 "ret_rms": self.ret_rms.state(), "lam": self.lam, "num_steps": self.num_steps,
-                "num_updates": self.num_updates, "resets": self._resets, "config": self.cfg.to_dict()}
+                "num_updates": self.num_updates, "resets": self._resets, "config": self.cfg.to_dict(),
+                **({"cost_rms": self.cost_rms.state()} if self.cfg.scale_cost else {}),
+                **({"lam_adam": dict(self.lam_adam)} if self.cfg.lagrange_optimizer == "adam" else {})}
 
     def load_state_dict(self, st: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` output (environments restart from a reset)."""
@@ -553,6 +605,11 @@ class PPOLagrangian:
         self.num_steps = int(st["num_steps"])
         self.num_updates = int(st["num_updates"])
         self._resets = int(st["resets"]) + 1
+        if "cost_rms" in st:
+            self.cost_rms.load(st["cost_rms"])
+        if "lam_adam" in st:
+            self.lam_adam = {"m": float(st["lam_adam"]["m"]), "v": float(st["lam_adam"]["v"]),
+                             "t": int(st["lam_adam"]["t"])}
         self._obs = None
 
     def close(self) -> None:

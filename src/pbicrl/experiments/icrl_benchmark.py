@@ -14,12 +14,13 @@ Hyperparameters follow the benchmark's expert configs (``train_ppo_lag_*.yaml``,
 the same knob: 5 environments x 2048 steps per rollout, [64, 64] tanh networks, gamma 0.99 (reward and cost),
 the task's learning rate, epochs, minibatch size, GAE lambda, clip, target KL, initial multiplier :math:`\\nu_0`
 (also its lower bound) and multiplier learning rate, entropy 0, value coefficient 0.5, gradient clip 0.5,
-initial log std 0 (SB3's default). Differences (recorded in ``config.json`` and ``docs/benchmarks/icrl/README.md``):
+initial log std 0 (SB3's default). As the benchmark, the multiplier :math:`\\nu = \\mathrm{softplus}(\\theta)` takes
+one Adam step per rollout on the rollout's mean raw per-step cost (budget 0) and never falls below :math:`\\nu_0`
+(``lagrange_optimizer="adam"``, ``lagrange_min``), and the cost critic sees costs divided by the running std of
+the discounted cost return (``scale_cost``). Differences (recorded in ``config.json`` and
+``docs/benchmarks/icrl/README.md``):
 
-* the multiplier takes a plain projected gradient step :math:`\\nu \\leftarrow \\max(\\nu_0, \\nu + \\eta \\bar c)`
-  on the rollout's mean per-step cost :math:`\\bar c` (budget 0), not an Adam step on a softplus pre-activation;
-* costs are not divided by a running std, and one GAE lambda serves reward and cost (Swimmer's cost lambda 0.95
-  becomes 0.9);
+* one GAE lambda serves reward and cost (Swimmer's cost lambda 0.95 becomes 0.9);
 * the target KL is checked after each epoch on the epoch's mean KL, against 1.5 x the config's value (SB3 stops
   within an epoch when the KL exceeds 1.5 x ``target_kl``);
 * gradients are clipped per network (policy, reward critic, cost critic) rather than jointly;
@@ -111,7 +112,7 @@ def expert_config(task: str, method: str) -> Any:
         init_log_std=0.0, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, target_kl=1.5 * h["target_kl"],
         cost_budget=0.0, lagrange_lr=h["nu_lr"], lagrange_init=h["nu0"] if lag else 0.0,
         lagrange_min=h["nu0"] if lag else 0.0, lagrange_max=100.0, normalize_obs=True, scale_reward=True,
-        torch_threads=1, episode_cost="step",
+        torch_threads=1, episode_cost="step", lagrange_optimizer="adam" if lag else "sgd", scale_cost=lag,
     ).validate()
 
 
