@@ -201,3 +201,30 @@ def test_adam_multiplier_and_cost_scale_survive_a_checkpoint(tmp_path):
     ag = load_run_checkpoint(run / "checkpoint.pt")["agent"]
     assert ag["lam_adam"]["t"] == 2 and ag["cost_rms"]["count"] > 1
     assert ag["config"]["lagrange_optimizer"] == "adam" and ag["config"]["scale_cost"] is True
+
+
+def test_fused_optimizer_is_the_same_algorithm_and_resumes_either_way():
+    from pbicrl.baselines.ppo_lagrangian import PPOLagrangian
+    from pbicrl.envs.point_mass import PointMassEnv
+
+    cfg = PPOLagConfig(n_envs=2, n_steps=64, n_epochs=2, minibatch_size=64)
+
+    def make(fused):
+        return PPOLagrangian(lambda: PointMassEnv(max_steps=10), lambda o, i: np.asarray(o)[:2],
+                             lambda c: np.zeros(len(c)), cfg, seed=0, fused_optimizer=fused)
+
+    plain, fused = make(False), make(True)
+    plain.learn(256)
+    fused.learn(256)
+    for p, q in zip(plain.ac.parameters(), fused.ac.parameters()):
+        np.testing.assert_allclose(p.detach().numpy(), q.detach().numpy(), atol=1e-5)
+    if fused.fused_optimizer:
+        again = make(True)
+        again.load_state_dict(plain.state_dict())  # a checkpoint of the default optimiser
+        assert again.opt.param_groups[0]["fused"] is True
+        again.learn(384)
+        assert again.num_steps == 384
+    back = make(False)
+    back.load_state_dict(fused.state_dict())
+    back.learn(384)
+    assert back.num_steps == 384

@@ -19,6 +19,7 @@ environments. Every task:
   Blocked Swimmer            :math:`|x_{t+1}-x_t|/dt - 10^{-4}\\sum a^2`
   ========================== ============================================================================
 
+  Each reward is paid on every step, the terminal one included (as the original's ``step``).
 * puts the benchmark's true cost in ``info["cost"]``: the strict indicator on the *post-step* ``obs[0]``,
   :math:`x < -3` (Half-Cheetah, Ant, Walker), :math:`x > 0.5` (Swimmer; the wall is in front),
   :math:`x < -0.015` (Pendulum). A violation changes neither the reward nor termination;

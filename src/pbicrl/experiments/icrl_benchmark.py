@@ -347,7 +347,7 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
         else:
             cost_fn = lambda xs: np.zeros(np.asarray(xs).shape[0])  # noqa: E731
         agent = PPOLagrangian(lambda: EpisodeRecorder(_make_env(spec.name), sink), coord_fn, cost_fn, cfg,
-                              seed=int(seed))
+                              seed=int(seed), fused_optimizer=True)
         curve, evals = run / "curve.jsonl", run / "eval.jsonl"
         state: dict[str, Any] = {"curve_bytes": 0, "eval_bytes": 0, "episodes": 0, "best_reward_nc": -math.inf,
                                  "wall_s": 0.0, "evals": 0}
