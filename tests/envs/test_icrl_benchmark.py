@@ -210,3 +210,21 @@ def test_wall_cost_is_strict():
     env.set_state(q, np.r_[-10.0, np.zeros(8)])
     obs, _, _, _, info = env.step(np.zeros(6))
     assert obs[0] < -3.0 and info["cost"] == 1.0
+
+
+@pytest.mark.parametrize("name", sorted(CLASSES))
+def test_features_are_the_reward_terms(name):
+    env = _env(name)
+    task = env.task
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        a = rng.uniform(-2, 2, env.action_space.shape)
+        _, r, term, _, info = env.step(a)
+        phi = info["features"]
+        assert phi.shape == (len(task.feature_names),)
+        assert r == pytest.approx(float(np.dot(task.nominal_weights, phi)))
+        sq = float(np.sum(np.clip(a, env.action_space.low, env.action_space.high) ** 2))
+        if "action_sq_norm" in task.feature_names:
+            assert phi[task.feature_names.index("action_sq_norm")] == pytest.approx(sq)
+        if term:
+            env.reset(seed=2)

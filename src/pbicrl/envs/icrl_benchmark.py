@@ -20,6 +20,10 @@ environments. Every task:
   ========================== ============================================================================
 
   Each reward is paid on every step, the terminal one included (as the original's ``step``).
+  ``info["features"]`` holds the reward's terms as known (nominal) features :math:`\\phi`, so that
+  :math:`r = w_n^\\top \\phi` with the task's ``nominal_weights`` (:class:`ICRLTask`): HC and Swimmer
+  ``(speed, action_sq_norm)``, Ant ``(distance, healthy, action_sq_norm)``, Walker ``(speed, alive,
+  action_sq_norm)``, Pendulum ``(bias_reward,)``.
 * puts the benchmark's true cost in ``info["cost"]``: the strict indicator on the *post-step* ``obs[0]``,
   :math:`x < -3` (Half-Cheetah, Ant, Walker), :math:`x > 0.5` (Swimmer; the wall is in front),
   :math:`x < -0.015` (Pendulum). A violation changes neither the reward nor termination;
@@ -100,6 +104,10 @@ class ICRLTask:
         ``behind``: a step violates iff :math:`x < \\text{wall}`; ``infront``: iff :math:`x > \\text{wall}` (strict).
     obs_dim, act_dim : int
         Observation and action sizes.
+    feature_names : tuple of str
+        Names of ``info["features"]``, the reward's terms.
+    nominal_weights : tuple of float
+        :math:`w_n` with :math:`r = w_n^\\top \\phi` (same length as ``feature_names``).
     """
 
     name: str
@@ -110,8 +118,13 @@ class ICRLTask:
     side: str
     obs_dim: int
     act_dim: int
+    feature_names: tuple[str, ...] = ()
+    nominal_weights: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        if len(self.feature_names) != len(self.nominal_weights):
+            raise ValueError(f"ICRLTask.nominal_weights: {len(self.nominal_weights)} weights for "
+                             f"{len(self.feature_names)} features")
         if self.side not in ("behind", "infront"):
             raise ValueError(f"ICRLTask.side: must be 'behind' or 'infront', got {self.side!r}")
         if self.max_episode_steps < 1:
@@ -127,13 +140,15 @@ class ICRLTask:
 _MOD = "pbicrl.envs.icrl_benchmark"
 ICRL_TASKS: dict[str, ICRLTask] = {
     "halfcheetah": ICRLTask("halfcheetah", "pbicrl/BlockedHalfCheetah-v0", f"{_MOD}:BlockedHalfCheetahEnv",
-                            1000, -3.0, "behind", 18, 6),
-    "ant": ICRLTask("ant", "pbicrl/BlockedAnt-v0", f"{_MOD}:BlockedAntEnv", 500, -3.0, "behind", 29, 8),
+                            1000, -3.0, "behind", 18, 6, ("speed", "action_sq_norm"), (1.0, -0.1)),
+    "ant": ICRLTask("ant", "pbicrl/BlockedAnt-v0", f"{_MOD}:BlockedAntEnv", 500, -3.0, "behind", 29, 8,
+                    ("distance", "healthy", "action_sq_norm"), (1.0, 1.0, -0.5)),
     "pendulum": ICRLTask("pendulum", "pbicrl/BiasedPendulum-v0", f"{_MOD}:BiasedPendulumEnv", 100, -0.015,
-                         "behind", 4, 1),
-    "walker": ICRLTask("walker", "pbicrl/BlockedWalker-v0", f"{_MOD}:BlockedWalkerEnv", 500, -3.0, "behind", 18, 6),
+                         "behind", 4, 1, ("bias_reward",), (1.0,)),
+    "walker": ICRLTask("walker", "pbicrl/BlockedWalker-v0", f"{_MOD}:BlockedWalkerEnv", 500, -3.0, "behind", 18, 6,
+                       ("speed", "alive", "action_sq_norm"), (1.0, 1.0, -1e-3)),
     "swimmer": ICRLTask("swimmer", "pbicrl/BlockedSwimmer-v0", f"{_MOD}:BlockedSwimmerEnv", 500, 0.5, "infront",
-                        10, 2),
+                        10, 2, ("speed", "action_sq_norm"), (1.0, -1e-4)),
 }
 """The five tasks by short name."""
 
@@ -226,8 +241,9 @@ class BlockedHalfCheetahEnv(_ICRLMixin, HalfCheetahEnv):
 
     def _icrl_reward(self, x_before: float, x_after: float, action: NDArray, obs: NDArray) -> tuple[float, dict]:
         run = _speed(self, x_before, x_after)
-        ctrl = 0.1 * float(np.sum(action**2))
-        return run - ctrl, {"reward_run": run, "reward_ctrl": -ctrl}
+        sq = float(np.sum(action**2))
+        ctrl = 0.1 * sq
+        return run - ctrl, {"reward_run": run, "reward_ctrl": -ctrl, "features": np.array([run, sq])}
 
 
 class BlockedAntEnv(_ICRLMixin, AntEnv):
@@ -246,10 +262,12 @@ class BlockedAntEnv(_ICRLMixin, AntEnv):
 
     def _icrl_reward(self, x_before: float, x_after: float, action: NDArray, obs: NDArray) -> tuple[float, dict]:
         dist = float(np.linalg.norm(self.data.body(self._main_body).xpos[:2]))
-        healthy = float(self.is_healthy) * float(self._healthy_reward)
-        ctrl = float(self._ctrl_cost_weight) * float(np.sum(action**2))
+        is_healthy = float(self.is_healthy)
+        healthy = is_healthy * float(self._healthy_reward)
+        sq = float(np.sum(action**2))
+        ctrl = float(self._ctrl_cost_weight) * sq
         return dist + healthy - ctrl, {"reward_distance": dist, "reward_survive": healthy, "reward_ctrl": -ctrl,
-                                       "reward_contact": 0.0}
+                                       "reward_contact": 0.0, "features": np.array([dist, is_healthy, sq])}
 
 
 class BiasedPendulumEnv(_ICRLMixin, InvertedPendulumEnv):
@@ -260,7 +278,7 @@ class BiasedPendulumEnv(_ICRLMixin, InvertedPendulumEnv):
 
     def _icrl_reward(self, x_before: float, x_after: float, action: NDArray, obs: NDArray) -> tuple[float, dict]:
         r = pendulum_reward(float(obs[0]))
-        return r, {"reward_bias": r}
+        return r, {"reward_bias": r, "features": np.array([r])}
 
     def _icrl_terminated(self, obs: NDArray) -> bool:
         return bool(not np.isfinite(obs).all() or abs(float(obs[1])) > 0.2)
@@ -282,8 +300,10 @@ class BlockedWalkerEnv(_ICRLMixin, Walker2dEnv):
 
     def _icrl_reward(self, x_before: float, x_after: float, action: NDArray, obs: NDArray) -> tuple[float, dict]:
         run = _speed(self, x_before, x_after)
-        ctrl = 1e-3 * float(np.sum(action**2))
-        return run + 1.0 - ctrl, {"reward_run": run, "reward_survive": 1.0, "reward_ctrl": -ctrl}
+        sq = float(np.sum(action**2))
+        ctrl = 1e-3 * sq
+        return run + 1.0 - ctrl, {"reward_run": run, "reward_survive": 1.0, "reward_ctrl": -ctrl,
+                                  "features": np.array([run, 1.0, sq])}
 
     def _icrl_terminated(self, obs: NDArray) -> bool:
         z, angle = float(self.data.qpos[1]), float(self.data.qpos[2])
@@ -301,5 +321,6 @@ class BlockedSwimmerEnv(_ICRLMixin, SwimmerEnv):
 
     def _icrl_reward(self, x_before: float, x_after: float, action: NDArray, obs: NDArray) -> tuple[float, dict]:
         run = _speed(self, x_before, x_after)
-        ctrl = 1e-4 * float(np.sum(action**2))
-        return run - ctrl, {"reward_run": run, "reward_ctrl": -ctrl}
+        sq = float(np.sum(action**2))
+        ctrl = 1e-4 * sq
+        return run - ctrl, {"reward_run": run, "reward_ctrl": -ctrl, "features": np.array([run, sq])}
