@@ -228,3 +228,33 @@ def test_fused_optimizer_is_the_same_algorithm_and_resumes_either_way():
     back.load_state_dict(fused.state_dict())
     back.learn(384)
     assert back.num_steps == 384
+
+
+def test_checkpoint_policy_rollouts_and_a_ranked_dataset(tmp_path):
+    from pbicrl.experiments.icrl_benchmark import CheckpointPolicy, demonstrations_dataset, rollout_episodes
+    from pbicrl.inference.data import load_dataset
+
+    run = train_policy("swimmer", "ppo_lag_true", 0, tmp_path, 128, config_overrides=SMALL, checkpoint_every=1,
+                       eval_every=1, eval_episodes=1, log=None)
+    pol = CheckpointPolicy(run / "best.pt")
+    assert pol.steps == 128
+    a = rollout_episodes("swimmer", pol, 2, seed=7)
+    b = rollout_episodes("swimmer", CheckpointPolicy(run / "checkpoint.pt"), 2, seed=7)
+    np.testing.assert_array_equal(a[0]["x"], b[0]["x"])  # deterministic, same weights, same seeds
+    ep = a[0]
+    assert ep["features"].shape == (500, 2) and ep["obs"].shape == (501, 10)
+    np.testing.assert_array_equal(ep["x"], ep["obs"][1:, 0])
+    np.testing.assert_allclose(ep["rewards"], ep["features"] @ np.array([1.0, -1e-4]))
+    assert ep["constraint"] == int(np.any(ep["x"] > 0.5)) and ep["reward"] == pytest.approx(ep["rewards"].sum())
+    noisy = rollout_episodes("swimmer", CheckpointPolicy(run / "best.pt", deterministic=False, seed=1), 1, seed=7)
+    assert not np.array_equal(noisy[0]["x"], ep["x"])
+    ds = demonstrations_dataset("swimmer", {1: a[:1], 3: a[1:]})
+    assert ds.feature_names == ("speed", "action_sq_norm") and ds.env_id == "pbicrl/BlockedSwimmer-v0"
+    assert list(ds.group) == [1, 3] and ds.states.shape == (1000, 1)
+    path = ds.save(tmp_path / "demos.npz")
+    back = load_dataset(path)
+    np.testing.assert_array_equal(back.states, ds.states)
+    with pytest.raises(ValueError, match="at least two groups"):
+        demonstrations_dataset("swimmer", {1: a})
+    with pytest.raises(ValueError, match=r"obs: expected shape \(10,\)"):
+        pol(np.zeros(3))

@@ -69,11 +69,14 @@ from numpy.typing import NDArray
 __all__ = [
     "CHECKPOINT",
     "METHODS",
+    "CheckpointPolicy",
     "EpisodeRecorder",
+    "demonstrations_dataset",
     "episode_metrics",
     "expert_config",
     "load_run_checkpoint",
     "main",
+    "rollout_episodes",
     "train_policy",
 ]
 
@@ -451,6 +454,121 @@ def _acquire(lock: Path) -> None:
             fh.write(str(os.getpid()))
         return
     raise RuntimeError(f"out: could not take the lock {lock}")
+
+
+class CheckpointPolicy:
+    """The policy of a checkpoint of :func:`train_policy` (``checkpoint.pt`` or ``best.pt``), without its
+    environments: ``policy(obs) -> action`` (the Gaussian's mean, or a draw when ``deterministic=False``).
+
+    Parameters
+    ----------
+    path : path
+        The checkpoint (read with ``torch.load(weights_only=True)``).
+    deterministic : bool
+        Act with the mean (default, as the benchmark generates its demonstrations) or draw from the policy.
+    seed : int
+        Seed of the action noise (``deterministic=False``).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, deterministic: bool = True, seed: int = 0) -> None:
+        import torch
+
+        from pbicrl.baselines.ppo_lagrangian import ActorCritic
+
+        st = load_run_checkpoint(Path(path))["agent"]
+        cfg = st["config"]
+        pi_w = st["ac"]["pi.0.weight"]
+        self.obs_dim = int(pi_w.shape[1])
+        self.act_dim = int(st["ac"]["log_std"].shape[0])
+        self.ac = ActorCritic(self.obs_dim, self.act_dim, tuple(cfg["hidden"]), float(cfg["init_log_std"]))
+        self.ac.load_state_dict(st["ac"])
+        self.ac.eval()
+        self.normalize = bool(cfg.get("normalize_obs", True))
+        self.mean = st["obs_rms"]["mean"].numpy().astype(np.float64)
+        self.std = np.sqrt(st["obs_rms"]["var"].numpy().astype(np.float64) + 1e-8)
+        self.deterministic = bool(deterministic)
+        self._gen = torch.Generator().manual_seed(int(seed))
+        self.steps = int(st["num_steps"])
+
+    def __call__(self, obs: Any) -> NDArray[np.float64]:
+        import torch
+
+        o = np.asarray(obs, dtype=np.float64).reshape(-1)
+        if o.shape != (self.obs_dim,):
+            raise ValueError(f"obs: expected shape ({self.obs_dim},), got {np.shape(obs)}")
+        x = np.clip((o - self.mean) / self.std, -10.0, 10.0) if self.normalize else o
+        with torch.no_grad():
+            d = self.ac.dist(torch.as_tensor(x[None], dtype=torch.float32))
+            a = d.mean if self.deterministic else d.mean + d.stddev * torch.randn(d.mean.shape, generator=self._gen)
+        return a.numpy()[0].astype(np.float64)  # the environment clips to its action box
+
+
+def rollout_episodes(task: str, policy: Callable[[Any], Any], episodes: int, *, seed: int = 0) -> list[dict[str, Any]]:
+    """Run ``episodes`` episodes of ``policy`` on ``task`` (reset seeds ``seed, seed + 1, ...``) and record them.
+
+    Returns
+    -------
+    list of dict
+        Per episode: ``features`` (T, d) (``info["features"]``, the reward's terms), ``x`` (T,) the post-step
+        ``obs[0]`` (the state the wall constrains), ``actions`` (T, a) clipped to the action box, ``obs`` (T+1, n)
+        raw observations from the reset on, ``rewards`` and ``costs`` (T,), ``seed``, and the benchmark's metrics
+        (:func:`episode_metrics`).
+    """
+    if int(episodes) < 1:
+        raise ValueError(f"episodes: must be >= 1, got {episodes!r}")
+    env = _make_env(task)
+    low, high = env.action_space.low, env.action_space.high
+    out = []
+    try:
+        for k in range(int(episodes)):
+            obs, _ = env.reset(seed=int(seed) + k)
+            obs_l, feats, xs, acts, rews, costs = [np.asarray(obs, dtype=np.float64)], [], [], [], [], []
+            while True:
+                a = np.clip(np.asarray(policy(obs), dtype=np.float64), low, high)
+                obs, r, term, trunc, info = env.step(a)
+                obs_l.append(np.asarray(obs, dtype=np.float64))
+                feats.append(np.asarray(info["features"], dtype=np.float64))
+                xs.append(float(np.asarray(obs).reshape(-1)[0]))
+                acts.append(a)
+                rews.append(float(r))
+                costs.append(float(info["cost"]))
+                if term or trunc:
+                    break
+            out.append({"features": np.stack(feats), "x": np.asarray(xs), "actions": np.stack(acts),
+                        "obs": np.stack(obs_l), "rewards": np.asarray(rews), "costs": np.asarray(costs),
+                        "seed": int(seed) + k, **episode_metrics(rews, costs)})
+    finally:
+        env.close()
+    return out
+
+
+def demonstrations_dataset(task: str, groups: dict[int, Sequence[dict[str, Any]]]) -> Any:
+    """A :class:`pbicrl.inference.data.Dataset` of recorded episodes (:func:`rollout_episodes`) in ranked groups.
+
+    ``groups[k]`` are the episodes of group ``k`` (1 = best). Features: the task's nominal features (the reward's
+    terms, with ``nominal_weights``); states: the post-step x (one column), which a parametric wall constraint
+    (``axis_halfspace`` on column 0) indexes; actions; ``env_id`` the task's Gymnasium id.
+    """
+    from pbicrl.envs.icrl_benchmark import icrl_task
+    from pbicrl.inference.data import Dataset
+
+    spec = icrl_task(task)
+    feats, states, acts, labels, offsets = [], [], [], [], [0]
+    for g in sorted(groups):
+        if int(g) != g or g < 1:
+            raise ValueError(f"groups: labels must be integers >= 1, got {g!r}")
+        for ep in groups[g]:
+            feats.append(np.asarray(ep["features"], dtype=np.float64))
+            states.append(np.asarray(ep["x"], dtype=np.float64)[:, None])
+            acts.append(np.asarray(ep["actions"], dtype=np.float64))
+            labels.append(int(g))
+            offsets.append(offsets[-1] + len(ep["x"]))
+    if len(set(labels)) < 2:
+        raise ValueError(f"groups: need episodes in at least two groups, got labels {sorted(set(labels))}")
+    return Dataset(features=np.concatenate(feats), offsets=np.asarray(offsets), group=np.asarray(labels),
+                   states=np.concatenate(states), actions=np.concatenate(acts),
+                   feature_names=spec.feature_names, nominal_weights=np.asarray(spec.nominal_weights),
+                   env_id=spec.env_id)
 
 
 def _parse_job(text: str) -> tuple[str, str, int, int]:
