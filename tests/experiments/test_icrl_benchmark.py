@@ -20,9 +20,9 @@ from pbicrl.experiments.icrl_benchmark import (  # noqa: E402
     episode_metrics,
     expert_config,
     load_run_checkpoint,
-    main,
     train_policy,
 )
+from pbicrl.cli.icrl_benchmark import main  # noqa: E402
 
 SMALL = dict(n_envs=2, n_steps=64, minibatch_size=64, n_epochs=1)
 
