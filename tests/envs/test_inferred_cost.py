@@ -296,14 +296,18 @@ def test_conservative_wall_sits_at_the_edge_nearest_the_safe_side(wall_run):
     assert env.describe()["terms"][0]["conservative_location"] == {"threshold": 8.0}
     env.reset(seed=0)
     assert [env.step([v])[4]["cost"] for v in (7.5, 9.0, 3.0)] == [0.0, 1.0, 0.0]
-    # good demonstrations that stopped at 6.5: the boundary moves to just beyond them
+    assert env.describe()["terms"][0]["boundary_from"].endswith("; the run records no dataset")
+    # good demonstrations that stopped at 6.5: the boundary is just beyond them
     safe = np.array([[1.0], [6.5], [4.0]])
     tight = InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, safe_states=safe)
     assert 6.5 < tight.conservative_location["wall"][0] < 6.5 + 1e-9
     np.testing.assert_array_equal(tight.costs(states=[[6.5], [6.6], [7.0]]), [0, 1, 1])
-    # demonstrations beyond every draw do not loosen it
+    # good demonstrations that went to 9.5 (past the lowest draw, 8): the states they showed safe are not charged
     loose = InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, safe_states=[[9.5]])
-    assert loose.conservative_location["wall"] == pytest.approx([8.0])
+    np.testing.assert_array_equal(loose.costs(states=[[9.0], [9.5], [9.6]]), [0, 0, 1])
+    assert loose.describe()["terms"][0]["boundary_from"] == "safe_states (given)"
+    none = InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, safe_states=None)
+    assert none.conservative_location["wall"] == pytest.approx([8.0])
     with pytest.raises(ValueError, match="safe_states: used only by mode 'conservative'"):
         InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, mode="indicator", safe_states=safe)
     with pytest.raises(ValueError, match="safe_states: expected a non-empty finite"):
@@ -347,3 +351,28 @@ def test_probability_threshold(nav_run, tmp_path):
     env = InferredConstraintCost.from_run(PointMassEnv("nominal"), nav_run, mode="probability")
     assert env.costs(np.array([[0.3, 0, 0, 1]]))[0] == 0.0
     assert env.describe()["threshold"] == 0.5
+
+
+def test_conservative_wall_from_the_runs_own_good_demonstrations(tmp_path):
+    """safe_states='auto' (default): the best group of the dataset recorded in the run's summary.json."""
+    from pbicrl.inference.data import Dataset
+
+    states = np.r_[np.linspace(0, 7.2, 5), np.linspace(0, 12.0, 5)][:, None]
+    ds = Dataset(features=np.ones((10, 1)), offsets=[0, 5, 10], group=[1, 2], states=states, feature_names=("f",))
+    data = ds.save(tmp_path / "demos.npz")
+    th = np.array([[6.0], [8.0], [10.0]])
+    cons = [{"family": "axis_halfspace", "dims": [0], "name": "wall", "direction": ">="}]
+    run = write_run(tmp_path / "r", ("f", "wall"), [[0, 1]] * 3, np.zeros((3, 2)), th, ("wall.threshold",), cons)
+    summary = json.loads((run / "summary.json").read_text())
+    summary["extra"] = {"data": {"path": str(data)}}
+    (run / "summary.json").write_text(json.dumps(summary))
+    env = InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o, constraints=["wall"])
+    assert 7.2 < env.conservative_location["wall"][0] < 7.2 + 1e-9  # not the lowest draw, 6
+    assert env.describe()["terms"][0]["boundary_from"] == f"the good demonstrations (group 1 of {data})"
+    np.testing.assert_array_equal(env.costs(states=[[7.0], [7.2], [7.3]]), [0, 0, 1])
+    data.unlink()  # the dataset moved: the posterior's draws, and the description says why
+    moved = InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o, constraints=["wall"])
+    assert moved.conservative_location["wall"] == pytest.approx([6.0])
+    assert "is not there" in moved.describe()["terms"][0]["boundary_from"]
+    with pytest.raises(ValueError, match="safe_states: expected an"):
+        InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o, safe_states="group1")

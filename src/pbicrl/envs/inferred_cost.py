@@ -17,10 +17,14 @@ default mode is ``conservative`` when the posterior has parametric constraints, 
     nearest the demonstrated safe behaviour, and the posterior says how hard to penalise, not where. The state
     is inside when it is inside the region of *any* kept draw with :math:`c_m = 1` (the union of the identified
     regions); for a wall :math:`x \ge \vartheta` that is :math:`x \ge \min \vartheta`, the lowest threshold
-    the posterior allows, which is where the good demonstrations stop. With ``safe_states`` (the states the
-    good, group-1 demonstrations reached) a wall's boundary is moved, if needed, to just beyond the furthest
-    of them. The cost of a step is :math:`\max_m P(c_m = 1 \mid \mathcal D)\,1[s \in R_m]` (known features:
-    :math:`P(c_j = 1)\,1[\phi_j(s) \ne 0]`), so it stays in [0, 1].
+    the posterior allows. When the states the good demonstrations reached are known (``safe_states``; by
+    default the best group of the run's own dataset, ``summary.json``'s ``extra.data.path``, when that file is
+    there) a wall's boundary is put just beyond the furthest of them instead: the furthest point the good
+    demonstrations reach, where the identified interval starts (a soft likelihood lets the posterior's lowest
+    draws spill over the demonstrated-safe states; those states are not charged). The cost of a step is
+    :math:`\max_m P(c_m = 1 \mid \mathcal D)\,1[s \in R_m]` (known features:
+    :math:`P(c_j = 1)\,1[\phi_j(s) \ne 0]`), so it stays in [0, 1]. :meth:`describe` says where each
+    boundary came from.
 ``indicator`` (default without parametric constraints)
     1 if the state is in any used constraint, else 0: a known feature counts when
     :math:`\phi_j(s) \ne 0` (indicator features), a parametric constraint when :math:`s \in R(\tilde\vartheta)`
@@ -51,6 +55,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -137,6 +142,32 @@ def default_step_functions(env: Any) -> tuple[str, tuple[str, ...], StepFunction
     return None
 
 
+def _good_demonstration_states(post: Any) -> tuple[NDArray[np.float64] | None, str]:
+    """States of the best-ranked group of the run's own dataset, and where they came from (or why not)."""
+    path = getattr(post, "data_path", None)
+    if path is None:
+        return None, "the run records no dataset"
+    path = Path(path)
+    if not path.is_file():
+        return None, f"the run's dataset {path} is not there"
+    from pbicrl.inference.data import load_dataset
+
+    try:
+        ds = load_dataset(path, allow_unlabelled=True)
+    except (ValueError, OSError, KeyError) as exc:
+        return None, f"the run's dataset {path} cannot be read ({type(exc).__name__})"
+    if ds.states is None:
+        return None, f"the run's dataset {path} has no states"
+    labels = np.asarray(ds.group)
+    ranked = labels[labels > 0]
+    if ranked.size == 0:
+        return None, f"the run's dataset {path} has no labelled trajectories"
+    best = int(ranked.min())
+    off = np.asarray(ds.offsets)
+    rows = np.concatenate([np.arange(off[i], off[i + 1]) for i in np.flatnonzero(labels == best)])
+    return np.asarray(ds.states, dtype=np.float64)[rows], f"the good demonstrations (group {best} of {path})"
+
+
 # ---------------------------------------------------------------------------------------------- geometry
 def _inside_many(c: Constraint, s: NDArray[np.float64], thetas: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Whether one state ``s`` (k,) is inside ``c``'s region for each row of ``thetas`` (N, P)."""
@@ -193,9 +224,11 @@ class InferredConstraintCost(gym.Wrapper):
         for ``sample``.
     threshold : float
         ``probability`` mode: the least :math:`P(c_j = 1)` of a costed feature (default 0.5), in (0, 1].
-    safe_states : array-like (n, k), optional
+    safe_states : array-like (n, k), "auto" or None
         ``conservative`` mode: states reached by the good (group-1) demonstrations; a wall
-        (``axis_halfspace``) boundary is put no further than just beyond the furthest of them.
+        (``axis_halfspace``) boundary is put just beyond the furthest of them. ``"auto"`` (default): the states
+        of the best group of the run's dataset when the run records one that can be read, else none. None: the
+        posterior's draws only.
     quantile : float
         ``penalty`` mode: quantile of :math:`w_{p,j} \mid c_j = 1` (default 0.5, the median).
     fold_into_reward : bool or float
@@ -220,7 +253,7 @@ class InferredConstraintCost(gym.Wrapper):
                  state: StepFunction | None = None, mode: str | None = None,
                  constraints: Sequence[str] | None = None, quantile: float = 0.5,
                  fold_into_reward: bool | float = False, seed: int | None = None, threshold: float = 0.5,
-                 safe_states: ArrayLike | None = None) -> None:
+                 safe_states: ArrayLike | str | None = "auto") -> None:
         super().__init__(env)
         if mode is not None and mode not in MODES:
             raise ValueError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
@@ -353,10 +386,21 @@ class InferredConstraintCost(gym.Wrapper):
                                      f"c=1 is {qv:g}, not a penalty (<= 0); use mode='indicator'")
                 self.penalty[fnames[j]] = qv
 
-    def _setup_conservative(self, safe_states: ArrayLike | None) -> None:
+    def _setup_conservative(self, safe_states: ArrayLike | str | None) -> None:
         """``conservative`` mode: the boundary of each used wall (``axis_halfspace``) at the edge of its identified
-        region nearest the safe side (tightened by ``safe_states``)."""
+        region nearest the safe side (just beyond the good demonstrations' states when they are known)."""
         self.conservative_location: dict[str, NDArray[np.float64]] = {}
+        self.boundary_source: dict[str, str] = {}
+        source = "the posterior's draws (the lowest / highest threshold with c = 1)"
+        if isinstance(safe_states, str):
+            if safe_states != "auto":
+                raise ValueError(f"safe_states: expected an (n, k) array, 'auto' or None, got {safe_states!r}")
+            safe_states = None
+            if self.mode == "conservative" and any(self._cons[m].family == "axis_halfspace" for m in self.used_param):
+                safe_states, why = _good_demonstration_states(self.posterior)
+                source = why if safe_states is not None else f"{source}; {why}"
+        elif safe_states is not None:
+            source = "safe_states (given)"
         if safe_states is not None and self.mode != "conservative":
             raise ValueError(f"safe_states: used only by mode 'conservative', not {self.mode!r}")
         safe = None
@@ -382,9 +426,9 @@ class InferredConstraintCost(gym.Wrapper):
                 if k >= safe.shape[1]:
                     raise ValueError(f"safe_states: {safe.shape[1]} column(s); constraint {c.name!r} uses column {k}")
                 reach = float(safe[:, k].max() if above else safe[:, k].min())
-                beyond = float(np.nextafter(reach, math.inf if above else -math.inf))
-                edge = min(edge, beyond) if above else max(edge, beyond)
+                edge = float(np.nextafter(reach, math.inf if above else -math.inf))
             self.conservative_location[c.name] = np.array([edge])
+            self.boundary_source[c.name] = source
 
     def _setup_step_functions(self, env: gym.Env, features: StepFunction | None, state: StepFunction | None) -> None:
         need_f = bool(self.used_known)
@@ -550,6 +594,7 @@ class InferredConstraintCost(gym.Wrapper):
                 t["median_location"] = dict(zip(c.param_names(), self.location[name].tolist()))
                 if name in self.conservative_location:
                     t["conservative_location"] = dict(zip(c.param_names(), self.conservative_location[name].tolist()))
+                    t["boundary_from"] = self.boundary_source[name]
                 elif self.mode == "conservative":
                     t["conservative_region"] = "union of the active draws' regions"
             if name in self.penalty:
