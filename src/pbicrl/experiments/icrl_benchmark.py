@@ -21,6 +21,9 @@ one Adam step per rollout on the rollout's mean raw per-step cost (budget 0) and
 the discounted cost return (``scale_cost``). Differences (recorded in ``config.json`` and
 ``docs/benchmarks/icrl/README.md``):
 
+* the cost enters the clipped surrogate through the combined advantage :math:`(A_r - \\nu A_c)/(1+\\nu)`; the
+  benchmark clips the reward surrogate only and adds :math:`\\nu\\,\\mathrm{mean}(A_c \\cdot \\text{ratio})` unclipped
+  (both scaled by :math:`1/(1+\\nu)`);
 * one GAE lambda serves reward and cost (Swimmer's cost lambda 0.95 becomes 0.9);
 * the target KL is checked after each epoch on the epoch's mean KL, against 1.5 x the config's value (SB3 stops
   within an epoch when the KL exceeds 1.5 x ``target_kl``);
