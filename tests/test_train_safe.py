@@ -229,3 +229,55 @@ def test_close_loop_names_data_dependent_stages_by_the_file_content():
         assert shipped_data_tag(name) == f"{name}-{sha[:12]}"
     assert _stage("inferred-probability", "hc-1") == "inferred-probability-hc-1"
     assert _stage("true", "hc-1") == "true" and _stage("nominal", "hc-1") == "nominal"
+
+
+@pytest.fixture
+def every_step_run(tmp_path):
+    """A posterior whose only constraint is 'goal_not_reached': every step before the goal costs 1."""
+    d = tmp_path / "every"
+    d.mkdir()
+    ind = np.zeros((1, 4, 4), dtype=np.int8)
+    ind[..., 3] = 1
+    np.savez(d / "chains.npz", indicators=ind, penalty_weights=-1.0 * ind, log_likelihood=np.zeros((1, 4)),
+             feature_names=np.array(NAV))
+    (d / "summary.json").write_text(json.dumps({"feature_names": list(NAV)}))
+    return d
+
+
+def test_summary_says_whether_the_cost_limit_was_met(every_step_run, tmp_path):
+    from pbicrl.errors import PbicrlWarning
+
+    with pytest.warns(PbicrlWarning, match="did NOT meet the cost limit"):
+        s = train_safe(tmp_path / "over", "point_mass", 128, 0.0, run=every_step_run, ppo=SMALL, eval_episodes=2,
+                       progress=False)
+    ev = s["evaluation"]
+    assert ev["cost"] > 0 and s["cost_limit_met"] is False
+    assert s["cost_limit_check"] == {"evaluation_cost": ev["cost"], "cost_limit": 0.0,
+                                     "violation_rate": ev["violation_rate"],
+                                     "violating_episodes": ev["violating_episodes"]}
+    assert json.loads((tmp_path / "over" / "summary.json").read_text())["cost_limit_met"] is False
+    assert "WARNING: the final policy did NOT meet" in (tmp_path / "over" / "progress.log").read_text()
+    ok = train_safe(tmp_path / "ok", "point_mass", 128, 0.0, run=None, cost="none", ppo=SMALL, eval_episodes=2,
+                    progress=False)
+    assert ok["cost_limit_met"] is True and ok["cost_limit_check"]["evaluation_cost"] == 0.0
+    assert "cost limit met" in (tmp_path / "ok" / "progress.log").read_text()
+    none = train_safe(tmp_path / "noeval", "point_mass", 128, 0.0, run=None, cost="none", ppo=SMALL, eval_episodes=0,
+                      progress=False)
+    assert none["cost_limit_met"] is None
+
+
+def test_cli_learning_rates_and_limit_warning(every_step_run, tmp_path, capsys):
+    out = tmp_path / "lr"
+    rc = main(["train-safe", str(every_step_run), "--env", "point_mass", "--steps", "200", "--cost-limit", "0",
+               "--out", str(out), "--eval-episodes", "1", "--quiet", "--lr", "0.001", "--lagrange-lr", "0.2"])
+    assert rc == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["cost_limit_met"] is False
+    assert "warning: the final policy did not meet --cost-limit 0" in cap.err
+    budget = json.loads((out / "budget.json").read_text())
+    assert budget["ppo"]["lr"] == 0.001 and budget["ppo"]["lagrange_lr"] == 0.2
+    assert budget["mode"] == "indicator"  # features only: the default mode is indicator
+    with pytest.raises(SystemExit):
+        main(["train-safe", str(every_step_run), "--env", "point_mass", "--steps", "200", "--out", str(tmp_path / "n"),
+              "--lr", "0"])
+    assert "expected a finite number > 0" in capsys.readouterr().err

@@ -5,7 +5,8 @@ The constrained problem is :math:`\max_\pi J_{r_n}(\pi)` subject to
 environment, and a per-step cost :math:`c` from
 
 * ``cost="inferred"`` (default): a run directory's posterior, through
-  :class:`pbicrl.envs.inferred_cost.InferredConstraintCost` (``mode`` indicator, probability, sample or penalty);
+  :class:`pbicrl.envs.inferred_cost.InferredConstraintCost` (``mode`` conservative - the default with parametric
+  constraints -, indicator, probability, sample or penalty);
 * ``cost="true"``: the environment's true constraint (1 per step inside the orange or red region, or at
   :math:`x \ge` the wall) - the reference a perfect inference would give;
 * ``cost="none"``: no cost (the nominal-only policy; the multiplier stays 0).
@@ -21,7 +22,8 @@ RecurrentPPO, TQC, TRPO).
 Run directory (``--out``): ``checkpoint.pt`` (resume point: networks, optimiser, normalisers, multiplier,
 counters; read with ``torch.load(weights_only=True)``), ``progress.log``, ``budget.json`` (requested and
 done steps, wall time per session, settings, versions), and at the end ``policy.pt`` and ``summary.json``
-(training history, the cost's description, an evaluation of the final policy). Running the same command
+(training history, the cost's description, an evaluation of the final policy and ``cost_limit_met``: whether
+its mean evaluation cost is within the limit, with a warning when it is not). Running the same command
 again resumes (a larger ``--steps`` continues training); SIGINT/SIGTERM write a checkpoint and stop. The
 training runs in this process and starts no child processes.
 
@@ -358,7 +360,7 @@ def _file_sha256(paths: Sequence[Path]) -> str:
 
 
 def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit: float = DEFAULT_COST_LIMIT, *,
-               run: str | os.PathLike[str] | None = None, cost: str = "inferred", mode: str = "indicator",
+               run: str | os.PathLike[str] | None = None, cost: str = "inferred", mode: str | None = None,
                quantile: float = 0.5, constraints: Sequence[str] | None = None, seed: int = 0,
                ppo: dict[str, Any] | None = None, warmup_steps: int = 0, eval_episodes: int = 20,
                checkpoint_every: int | None = None,
@@ -381,7 +383,8 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
         Run directory of ``pbicrl infer`` (required for ``cost="inferred"``).
     cost : {"inferred", "true", "none"}
     mode, quantile, constraints
-        Of :class:`pbicrl.envs.inferred_cost.InferredConstraintCost` (``cost="inferred"`` only).
+        Of :class:`pbicrl.envs.inferred_cost.InferredConstraintCost` (``cost="inferred"`` only; the default mode
+        is ``conservative`` for a posterior with parametric constraints, else ``indicator``).
     seed : int
         Seeds torch, the action noise and the environment resets.
     ppo : dict, optional
@@ -447,6 +450,7 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
     factory = _CostEnvFactory(env, cost, record, mode, quantile, constraints)
     probe = factory()  # builds the cost wrapper: wrong env for the run, no selected constraint, ... fail here
     description = probe.describe() if cost == "inferred" else {"cost": cost}
+    mode = probe.mode if cost == "inferred" else mode  # the default resolved by the posterior
     probe.close()
     identity = {"env": env, "cost": cost, "mode": mode if cost == "inferred" else None,
                 "quantile": quantile if cost == "inferred" and mode == "penalty" else None,
@@ -587,14 +591,48 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
                "last_10_updates": final, "evaluation": evaluation,
                "evaluation_note": "deterministic policy (the Gaussian's mean), seeds 10000019 + seed + k" if evaluation else None,
                "run": run_info, "runtime_s": round(float(st["wall_time_s"]), 1), "sessions": len(st["sessions"]),
-               "ppo": cfg.to_dict(), "history": history}
+               "ppo": cfg.to_dict(), "history": history, **_limit_check(evaluation, cost_limit)}
     save("complete")
     write_json_file(out / "summary.json", summary)
     ev = "" if evaluation is None else (f"; evaluation ({eval_episodes} episodes): violation rate "
                                         f"{evaluation['violation_rate']:.3f}, true return {evaluation['true_return']:.1f}, "
                                         f"nominal return {evaluation['nominal_return']:.1f}, cost {evaluation['cost']:.2f}")
     log(f"done: {agent.num_steps} steps, lambda {agent.lam:.3f}{ev}")
+    _report_limit(summary, log)
     return summary
+
+
+def _limit_check(evaluation: dict[str, Any] | None, cost_limit: float) -> dict[str, Any]:
+    """``cost_limit_met`` (None without an evaluation) and the numbers it rests on, for ``summary.json``."""
+    if evaluation is None:
+        return {"cost_limit_met": None, "cost_limit_check": None}
+    c = float(evaluation.get("cost", 0.0))
+    return {"cost_limit_met": bool(c <= cost_limit),
+            "cost_limit_check": {"evaluation_cost": c, "cost_limit": cost_limit,
+                                 "violation_rate": float(evaluation["violation_rate"]),
+                                 "violating_episodes": float(evaluation["violating_episodes"])}}
+
+
+def _report_limit(summary: dict[str, Any], log: Callable[[str], None]) -> None:
+    """Say whether the final policy met the cost limit; warn when it did not."""
+    import warnings
+
+    from pbicrl.errors import PbicrlWarning
+
+    chk = summary.get("cost_limit_check")
+    if chk is None:
+        log("cost limit: not checked (no evaluation episodes)")
+        return
+    line = (f"evaluation cost {chk['evaluation_cost']:.3g} per episode vs --cost-limit {chk['cost_limit']:g}; true "
+            f"constraint violated in {chk['violating_episodes']:.0%} of the episodes ({chk['violation_rate']:.3g} of "
+            "the steps)")
+    if summary["cost_limit_met"]:
+        log(f"cost limit met: {line}")
+        return
+    msg = (f"the final policy did NOT meet the cost limit: {line}. Train longer (--steps), raise --lagrange-lr, or "
+           "lower --lr")
+    log(f"WARNING: {msg}")
+    warnings.warn(msg, PbicrlWarning, stacklevel=3)
 
 
 __getattr__ = moved_to_cli(__name__, {"add_subcommands": "pbicrl.cli.train_safe"})  # the command line moved

@@ -93,8 +93,11 @@ def test_indicator_features_each_mode(nav_run):
     assert env.used == (1, 2)  # the selected set, P(c=1) > 0.5
     np.testing.assert_array_equal(env.costs(phi), [0, 1, 1])
     prob = InferredConstraintCost.from_run(PointMassEnv("nominal"), nav_run, mode="probability")
-    assert prob.used == (0, 1, 2)  # every feature with P(c=1) > 0
-    np.testing.assert_allclose(prob.costs(phi), [0.2 * 0.1, 0.02 + 1, 0.02 + 1])
+    assert prob.used == (1, 2)  # P(c=1) >= threshold 0.5: inv_goal_distance (0.2) would charge every step
+    np.testing.assert_allclose(prob.costs(phi), [0, 1, 1])
+    low = InferredConstraintCost.from_run(PointMassEnv("nominal"), nav_run, mode="probability", threshold=0.1)
+    assert low.used == (0, 1, 2)
+    np.testing.assert_allclose(low.costs(phi), [0.2 * 0.1, 0.02 + 1, 0.02 + 1])
     samp = InferredConstraintCost.from_run(PointMassEnv("nominal"), nav_run, mode="sample")
     np.testing.assert_allclose(samp.costs(phi, draw=0), [0.1, 1.1, 1.1])  # draw 0 has inv_goal_distance on
     np.testing.assert_allclose(samp.costs(phi, draw=5), [0, 1, 1])
@@ -141,7 +144,7 @@ def test_sample_mode_draw_is_seeded_per_episode(nav_run):
 def test_axis_halfspace_each_mode(wall_run):
     env = StateEnv(1)
     x = np.array([[7.0], [9.0], [10.5], [11.0], [20.0]])
-    ind = InferredConstraintCost(env, load_run(wall_run), state=lambda o, i: o)
+    ind = InferredConstraintCost(env, load_run(wall_run), state=lambda o, i: o, mode="indicator")
     assert ind.location["wall"] == pytest.approx([11.0])
     np.testing.assert_array_equal(ind.costs(states=x), [0, 0, 0, 1, 1])
     prob = InferredConstraintCost(env, wall_run, state=lambda o, i: o, mode="probability")
@@ -186,7 +189,7 @@ def test_wall_env_uses_its_own_x_position(wall_run, tmp_path):
 def test_box_each_mode(box_run):
     env = StateEnv(3)
     s = np.array([[0.5, 0.5, 0.5], [1.2, 0.5, 0.5], [1.8, 0.5, 0.5], [0.5, -0.1, 0.5]])
-    ind = InferredConstraintCost(env, box_run, state=lambda o, i: o)
+    ind = InferredConstraintCost(env, box_run, state=lambda o, i: o, mode="indicator")
     np.testing.assert_array_equal(ind.costs(states=s), [1, 1, 0, 0])  # median box [0, 1.5]^3
     prob = InferredConstraintCost(env, box_run, state=lambda o, i: o, mode="probability")
     np.testing.assert_allclose(prob.costs(states=s), [1, 0.5, 0.5, 0])
@@ -275,3 +278,101 @@ def test_describe_is_json_ready(wall_run):
     d = json.loads(json.dumps(env.describe()))
     assert d["terms"] == [{"name": "wall", "kind": "parametric", "p_constraint": 1.0, "family": "axis_halfspace",
                            "dims": [0], "median_location": {"threshold": 11.0}, "penalty_quantile": -2.5}]
+
+
+# --------------------------------------------------------------------------------------------- conservative mode
+def test_conservative_is_the_default_for_parametric_constraints(wall_run, box_run, nav_run):
+    assert InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o).mode == "conservative"
+    assert InferredConstraintCost(StateEnv(3), box_run, state=lambda o, i: o).mode == "conservative"
+    assert InferredConstraintCost.from_run(PointMassEnv("nominal"), nav_run).mode == "indicator"  # features only
+
+
+def test_conservative_wall_sits_at_the_edge_nearest_the_safe_side(wall_run):
+    x = np.array([[7.0], [7.99], [8.0], [9.0], [20.0]])
+    env = InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o)
+    # draws 8, 10, 12, 14: the lowest threshold the posterior allows, not the median 11
+    assert env.conservative_location["wall"] == pytest.approx([8.0])
+    np.testing.assert_array_equal(env.costs(states=x), [0, 0, 1, 1, 1])
+    assert env.describe()["terms"][0]["conservative_location"] == {"threshold": 8.0}
+    env.reset(seed=0)
+    assert [env.step([v])[4]["cost"] for v in (7.5, 9.0, 3.0)] == [0.0, 1.0, 0.0]
+    assert env.describe()["terms"][0]["boundary_from"].endswith("; the run records no dataset")
+    # good demonstrations that stopped at 6.5: the boundary is just beyond them
+    safe = np.array([[1.0], [6.5], [4.0]])
+    tight = InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, safe_states=safe)
+    assert 6.5 < tight.conservative_location["wall"][0] < 6.5 + 1e-9
+    np.testing.assert_array_equal(tight.costs(states=[[6.5], [6.6], [7.0]]), [0, 1, 1])
+    # good demonstrations that went to 9.5 (past the lowest draw, 8): the states they showed safe are not charged
+    loose = InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, safe_states=[[9.5]])
+    np.testing.assert_array_equal(loose.costs(states=[[9.0], [9.5], [9.6]]), [0, 0, 1])
+    assert loose.describe()["terms"][0]["boundary_from"] == "safe_states (given)"
+    none = InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, safe_states=None)
+    assert none.conservative_location["wall"] == pytest.approx([8.0])
+    with pytest.raises(ValueError, match="safe_states: used only by mode 'conservative'"):
+        InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, mode="indicator", safe_states=safe)
+    with pytest.raises(ValueError, match="safe_states: expected a non-empty finite"):
+        InferredConstraintCost(StateEnv(1), wall_run, state=lambda o, i: o, safe_states=[[np.nan]])
+
+
+def test_conservative_weight_is_the_posterior_probability(tmp_path):
+    """The posterior says how hard (P(c=1) = 0.75), not where (the lowest active threshold, 10)."""
+    th = np.array([[8.0], [10.0], [12.0], [14.0]])
+    ind = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 1], [0, 0, 1]])  # the draw at 8 has c = 0
+    cons = [{"family": "axis_halfspace", "dims": [0], "name": "wall", "direction": ">="}]
+    run = write_run(tmp_path / "w", ("forward_displacement", "action_sq_norm", "wall"), ind, np.zeros((4, 3)), th,
+                    ("wall.threshold",), cons)
+    env = InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o)
+    assert env.conservative_location["wall"] == pytest.approx([10.0])
+    np.testing.assert_allclose(env.costs(states=[[9.0], [10.0], [30.0]]), [0, 0.75, 0.75])
+
+
+def test_conservative_below_and_box_union(tmp_path, box_run):
+    cons = [{"family": "axis_halfspace", "dims": [0], "name": "floor", "direction": "<="}]
+    run = write_run(tmp_path / "f", ("floor",), [[1], [1], [1]], [[-1.0]] * 3, [[-3.0], [-2.0], [-4.0]],
+                    ("floor.threshold",), cons)
+    env = InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o)
+    assert env.conservative_location["floor"] == pytest.approx([-2.0])  # x <= theta: the highest draw
+    np.testing.assert_array_equal(env.costs(states=[[-2.5], [-1.9]]), [1, 0])
+    box = InferredConstraintCost(StateEnv(3), box_run, state=lambda o, i: o)
+    s = np.array([[0.5, 0.5, 0.5], [1.8, 0.5, 0.5], [2.5, 0.5, 0.5]])
+    np.testing.assert_array_equal(box.costs(states=s), [1, 1, 0])  # inside [0, 1]^3 or [0, 2]^3
+    assert box.describe()["terms"][0]["conservative_region"].startswith("union")
+
+
+def test_probability_threshold(nav_run, tmp_path):
+    with pytest.raises(ValueError, match=r"threshold: must be in \(0, 1\]"):
+        InferredConstraintCost.from_run(PointMassEnv("nominal"), nav_run, mode="probability", threshold=0.0)
+    weak = write_run(tmp_path / "weak", NAV, [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 0]], np.zeros((3, 4)))
+    with pytest.raises(ValueError, match=r"no constraint is likely enough \(P\(c=1\) < threshold 0.5"):
+        InferredConstraintCost.from_run(PointMassEnv("nominal"), weak, mode="probability")
+    assert InferredConstraintCost.from_run(PointMassEnv("nominal"), weak, mode="probability",
+                                           threshold=0.3).used == (0, 1)
+    # a budget of 0.1 per episode is reachable once the unlikely feature is dropped: outside the regions, no cost
+    env = InferredConstraintCost.from_run(PointMassEnv("nominal"), nav_run, mode="probability")
+    assert env.costs(np.array([[0.3, 0, 0, 1]]))[0] == 0.0
+    assert env.describe()["threshold"] == 0.5
+
+
+def test_conservative_wall_from_the_runs_own_good_demonstrations(tmp_path):
+    """safe_states='auto' (default): the best group of the dataset recorded in the run's summary.json."""
+    from pbicrl.inference.data import Dataset
+
+    states = np.r_[np.linspace(0, 7.2, 5), np.linspace(0, 12.0, 5)][:, None]
+    ds = Dataset(features=np.ones((10, 1)), offsets=[0, 5, 10], group=[1, 2], states=states, feature_names=("f",))
+    data = ds.save(tmp_path / "demos.npz")
+    th = np.array([[6.0], [8.0], [10.0]])
+    cons = [{"family": "axis_halfspace", "dims": [0], "name": "wall", "direction": ">="}]
+    run = write_run(tmp_path / "r", ("f", "wall"), [[0, 1]] * 3, np.zeros((3, 2)), th, ("wall.threshold",), cons)
+    summary = json.loads((run / "summary.json").read_text())
+    summary["extra"] = {"data": {"path": str(data)}}
+    (run / "summary.json").write_text(json.dumps(summary))
+    env = InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o, constraints=["wall"])
+    assert 7.2 < env.conservative_location["wall"][0] < 7.2 + 1e-9  # not the lowest draw, 6
+    assert env.describe()["terms"][0]["boundary_from"] == f"the good demonstrations (group 1 of {data})"
+    np.testing.assert_array_equal(env.costs(states=[[7.0], [7.2], [7.3]]), [0, 0, 1])
+    data.unlink()  # the dataset moved: the posterior's draws, and the description says why
+    moved = InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o, constraints=["wall"])
+    assert moved.conservative_location["wall"] == pytest.approx([6.0])
+    assert "is not there" in moved.describe()["terms"][0]["boundary_from"]
+    with pytest.raises(ValueError, match="safe_states: expected an"):
+        InferredConstraintCost(StateEnv(1), run, state=lambda o, i: o, safe_states="group1")

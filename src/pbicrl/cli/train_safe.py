@@ -17,16 +17,22 @@ __all__ = ["add_subcommands"]
 
 def _cmd_train_safe(args: argparse.Namespace) -> int:
     constraints = [c.strip() for c in args.constraints.split(",") if c.strip()] if args.constraints else None
+    ppo = {k: v for k, v in (("lr", args.lr), ("lagrange_lr", args.lagrange_lr)) if v is not None}
     try:
         s = train_safe(args.out, args.env, args.steps, args.cost_limit, run=args.run, cost=args.cost, mode=args.mode,
                        quantile=args.quantile, constraints=constraints, seed=args.seed, eval_episodes=args.eval_episodes,
-                       warmup_steps=args.warmup_steps,
+                       warmup_steps=args.warmup_steps, ppo=ppo or None,
                        progress=not args.quiet)
     except KeyboardInterrupt:
         print(f"pbicrl: interrupted; checkpoint in {args.out}, rerun the same command to resume", file=sys.stderr)
         return 130
-    print(json.dumps({k: s[k] for k in ("env", "cost", "cost_limit", "steps", "lambda", "last_10_updates", "evaluation",
-                                        "runtime_s")}, indent=2))
+    print(json.dumps({k: s.get(k) for k in ("env", "cost", "cost_limit", "steps", "lambda", "last_10_updates",
+                                            "evaluation", "cost_limit_met", "cost_limit_check", "runtime_s")}, indent=2))
+    chk = s.get("cost_limit_check")
+    if s.get("cost_limit_met") is False and chk:
+        print(f"pbicrl: warning: the final policy did not meet --cost-limit {chk['cost_limit']:g}: evaluation cost "
+              f"{chk['evaluation_cost']:.3g} per episode, violating episodes {chk['violating_episodes']:.0%}; train "
+              "longer (--steps), raise --lagrange-lr or lower --lr", file=sys.stderr)
     return 0
 
 
@@ -41,6 +47,15 @@ def add_subcommands(sub: Any) -> None:
             raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
         if not (math.isfinite(v) and v >= 0):
             raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+        return v
+
+    def positive_float(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
         return v
 
     def unit(text: str) -> float:
@@ -63,8 +78,10 @@ def add_subcommands(sub: Any) -> None:
                    help=f"budget D on the expected cost per episode (default {DEFAULT_COST_LIMIT:g})")
     p.add_argument("--out", required=True, type=Path, help="run directory (checkpoint, progress.log, budget.json, ...)")
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
-    p.add_argument("--mode", choices=["indicator", "probability", "sample", "penalty"], default="indicator",
-                   help="how the posterior becomes a cost (default indicator: 1 per step in a selected constraint)")
+    p.add_argument("--mode", choices=["conservative", "indicator", "probability", "sample", "penalty"], default=None,
+                   help="how the posterior becomes a cost (default: conservative for parametric constraints - the "
+                        "boundary at the edge of the identified region nearest the safe demonstrations -, else "
+                        "indicator: 1 per step in a selected constraint)")
     p.add_argument("--quantile", type=unit, default=0.5, help="penalty mode: quantile of w_p | c=1 (default 0.5)")
     p.add_argument("--constraints", help="comma-separated constraints to cost (default: the selected set, or every "
                                          "feature with P(c=1) > 0 for probability/sample)")
@@ -75,5 +92,9 @@ def add_subcommands(sub: Any) -> None:
                    help="steps of nominal training (zero cost) before the cost is on (default 0)")
     p.add_argument("--eval-episodes", type=nonneg_int, default=20,
                    help="episodes of the final policy to evaluate into summary.json (default 20)")
+    p.add_argument("--lr", type=positive_float, default=None,
+                   help="PPO learning rate (default: the environment's, see pbicrl.safe_rl.ppo_config)")
+    p.add_argument("--lagrange-lr", type=positive_float, default=None,
+                   help="step of the Lagrange multiplier per unit of excess episode cost (default 0.05)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr (progress.log still has them)")
     p.set_defaults(func=_cmd_train_safe)

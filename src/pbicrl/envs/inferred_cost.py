@@ -9,16 +9,31 @@ dataset) and, optionally, parametric constraints :math:`\phi_{\vartheta_m}(s) = 
 and for parametric constraints the state, ``state(obs, info) -> (k,)`` (the columns the constraints'
 ``dims`` index). The shipped environments provide both (:func:`default_step_functions`).
 
-Modes (:data:`MODES`), for the constraints used (default: the selected set, :math:`P(c_j = 1) > 0.5`):
+Modes (:data:`MODES`), for the constraints used (default: the selected set, :math:`P(c_j = 1) > 0.5`). The
+default mode is ``conservative`` when the posterior has parametric constraints, else ``indicator``.
 
-``indicator`` (default)
+``conservative`` (default with parametric constraints)
+    Safe by construction: a parametric constraint's boundary is put at the edge of the identified region
+    nearest the demonstrated safe behaviour, and the posterior says how hard to penalise, not where. The state
+    is inside when it is inside the region of *any* kept draw with :math:`c_m = 1` (the union of the identified
+    regions); for a wall :math:`x \ge \vartheta` that is :math:`x \ge \min \vartheta`, the lowest threshold
+    the posterior allows. When the states the good demonstrations reached are known (``safe_states``; by
+    default the best group of the run's own dataset, ``summary.json``'s ``extra.data.path``, when that file is
+    there) a wall's boundary is put just beyond the furthest of them instead: the furthest point the good
+    demonstrations reach, where the identified interval starts (a soft likelihood lets the posterior's lowest
+    draws spill over the demonstrated-safe states; those states are not charged). The cost of a step is
+    :math:`\max_m P(c_m = 1 \mid \mathcal D)\,1[s \in R_m]` (known features:
+    :math:`P(c_j = 1)\,1[\phi_j(s) \ne 0]`), so it stays in [0, 1]. :meth:`describe` says where each
+    boundary came from.
+``indicator`` (default without parametric constraints)
     1 if the state is in any used constraint, else 0: a known feature counts when
     :math:`\phi_j(s) \ne 0` (indicator features), a parametric constraint when :math:`s \in R(\tilde\vartheta)`
     with :math:`\tilde\vartheta` the posterior median of its parameters given :math:`c_m = 1`. Penalty
     magnitudes are often not identified by rankings (only a lower bound is), so this mode does not use them.
 ``probability``
     :math:`\sum_j P(c_j = 1 \mid \mathcal D)\,\phi_j(s) + \sum_m P(c_m = 1, s \in R(\vartheta_m) \mid \mathcal D)`
-    over every feature with :math:`P(c_j = 1) > 0` (default): each constraint feature weighted by its
+    over the features with :math:`P(c_j = 1) \ge` ``threshold`` (default 0.5; a feature the posterior
+    leans against would otherwise charge every step it is non-zero): each constraint feature weighted by its
     posterior probability; for a parametric constraint the posterior probability that the state is inside.
 ``sample``
     At every ``reset`` one kept posterior draw :math:`(c, \vartheta)` is chosen uniformly, with the wrapper's
@@ -40,6 +55,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -54,7 +70,7 @@ from pbicrl.inference.constraints import Constraint, ConstraintError, constraint
 
 __all__ = ["MODES", "InferredConstraintCost", "StepFunction", "default_step_functions"]
 
-MODES: tuple[str, ...] = ("indicator", "probability", "sample", "penalty")
+MODES: tuple[str, ...] = ("conservative", "indicator", "probability", "sample", "penalty")
 
 StepFunction = Callable[[Any, dict], ArrayLike]
 """``f(obs, info) -> array``: per-step features ``(d,)`` or state ``(k,)`` of the state a step reached."""
@@ -126,6 +142,32 @@ def default_step_functions(env: Any) -> tuple[str, tuple[str, ...], StepFunction
     return None
 
 
+def _good_demonstration_states(post: Any) -> tuple[NDArray[np.float64] | None, str]:
+    """States of the best-ranked group of the run's own dataset, and where they came from (or why not)."""
+    path = getattr(post, "data_path", None)
+    if path is None:
+        return None, "the run records no dataset"
+    path = Path(path)
+    if not path.is_file():
+        return None, f"the run's dataset {path} is not there"
+    from pbicrl.inference.data import load_dataset
+
+    try:
+        ds = load_dataset(path, allow_unlabelled=True)
+    except (ValueError, OSError, KeyError) as exc:
+        return None, f"the run's dataset {path} cannot be read ({type(exc).__name__})"
+    if ds.states is None:
+        return None, f"the run's dataset {path} has no states"
+    labels = np.asarray(ds.group)
+    ranked = labels[labels > 0]
+    if ranked.size == 0:
+        return None, f"the run's dataset {path} has no labelled trajectories"
+    best = int(ranked.min())
+    off = np.asarray(ds.offsets)
+    rows = np.concatenate([np.arange(off[i], off[i + 1]) for i in np.flatnonzero(labels == best)])
+    return np.asarray(ds.states, dtype=np.float64)[rows], f"the good demonstrations (group {best} of {path})"
+
+
 # ---------------------------------------------------------------------------------------------- geometry
 def _inside_many(c: Constraint, s: NDArray[np.float64], thetas: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Whether one state ``s`` (k,) is inside ``c``'s region for each row of ``thetas`` (N, P)."""
@@ -172,12 +214,21 @@ class InferredConstraintCost(gym.Wrapper):
     state : callable, optional
         ``state(obs, info) -> (k,)``, the state that parametric constraints' ``dims`` index. Default: the
         environment's own.
-    mode : {"indicator", "probability", "sample", "penalty"}
-        See the module docstring.
+    mode : {"conservative", "indicator", "probability", "sample", "penalty"}, optional
+        See the module docstring. Default: ``conservative`` if the posterior has parametric constraints, else
+        ``indicator``.
     constraints : sequence of str, optional
         Names of the features / parametric constraints to cost. Default: the selected set
-        (:math:`P(c_j = 1) > 0.5`) for ``indicator`` and ``penalty``, every feature with
-        :math:`P(c_j = 1) > 0` for ``probability`` and ``sample``.
+        (:math:`P(c_j = 1) > 0.5`) for ``conservative``, ``indicator`` and ``penalty``; the features with
+        :math:`P(c_j = 1) \ge` ``threshold`` for ``probability``; every feature with :math:`P(c_j = 1) > 0`
+        for ``sample``.
+    threshold : float
+        ``probability`` mode: the least :math:`P(c_j = 1)` of a costed feature (default 0.5), in (0, 1].
+    safe_states : array-like (n, k), "auto" or None
+        ``conservative`` mode: states reached by the good (group-1) demonstrations; a wall
+        (``axis_halfspace``) boundary is put just beyond the furthest of them. ``"auto"`` (default): the states
+        of the best group of the run's dataset when the run records one that can be read, else none. None: the
+        posterior's draws only.
     quantile : float
         ``penalty`` mode: quantile of :math:`w_{p,j} \mid c_j = 1` (default 0.5, the median).
     fold_into_reward : bool or float
@@ -199,12 +250,17 @@ class InferredConstraintCost(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, posterior: Any, features: StepFunction | None = None, *,
-                 state: StepFunction | None = None, mode: str = "indicator",
+                 state: StepFunction | None = None, mode: str | None = None,
                  constraints: Sequence[str] | None = None, quantile: float = 0.5,
-                 fold_into_reward: bool | float = False, seed: int | None = None) -> None:
+                 fold_into_reward: bool | float = False, seed: int | None = None, threshold: float = 0.5,
+                 safe_states: ArrayLike | str | None = "auto") -> None:
         super().__init__(env)
-        if mode not in MODES:
+        if mode is not None and mode not in MODES:
             raise ValueError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
+        thr = float(threshold)
+        if not 0.0 < thr <= 1.0:
+            raise ValueError(f"threshold: must be in (0, 1], got {threshold!r}")
+        self.threshold = thr
         q = float(quantile)
         if not 0.0 < q < 1.0:
             raise ValueError(f"quantile: must be in (0, 1), got {quantile!r}")
@@ -218,6 +274,7 @@ class InferredConstraintCost(gym.Wrapper):
         self.mode, self.quantile, self.fold_coefficient = mode, q, kappa
         self.posterior = posterior
         self._setup_posterior(posterior, constraints)
+        self._setup_conservative(safe_states)
         self._setup_step_functions(env, features, state)
         self._rng = np.random.default_rng(None if seed is None else self._seed_sequence(int(seed)))
         self._draw: int | None = None
@@ -247,6 +304,8 @@ class InferredConstraintCost(gym.Wrapper):
         if ind.shape[0] == 0:
             raise ValueError("posterior: has no kept draws")
         specs = (getattr(post, "settings", None) or {}).get("constraints") or []
+        if self.mode is None:  # safe by construction where the posterior locates a region
+            self.mode = "conservative" if specs else "indicator"
         pnames = tuple(getattr(post, "parameter_names", ()) or ())
         if pnames and not specs:
             raise ValueError("posterior: has parameters " + ", ".join(pnames) + " but no definition of its parametric "
@@ -271,13 +330,19 @@ class InferredConstraintCost(gym.Wrapper):
         offs = np.concatenate([[0], np.cumsum([c.n_params for c in cons])]).astype(int)
         p_on = ind.mean(axis=0)
         if names is None:
-            use = [j for j in range(d) if (p_on[j] > 0.5 if self.mode in ("indicator", "penalty") else p_on[j] > 0)]
+            if self.mode == "sample":
+                use = [j for j in range(d) if p_on[j] > 0]
+                why = "ever active (P(c=1) = 0 for all of "
+            elif self.mode == "probability":
+                use = [j for j in range(d) if p_on[j] >= self.threshold]
+                why = f"likely enough (P(c=1) < threshold {self.threshold:g} for all of "
+            else:
+                use = [j for j in range(d) if p_on[j] > 0.5]
+                why = "selected (P(c=1) > 0.5 for none of "
             if not use:
-                raise ValueError("posterior: no constraint is " + ("selected (P(c=1) > 0.5 for none of "
-                                 if self.mode in ("indicator", "penalty") else "ever active (P(c=1) = 0 for all of ")
-                                 + ", ".join(fnames) + "), so the cost would be 0 everywhere; name the ones to cost "
-                                 "with constraints=[...]" + (" or use mode='probability'" if self.mode in
-                                                            ("indicator", "penalty") else ""))
+                raise ValueError("posterior: no constraint is " + why + ", ".join(fnames) + "), so the cost would be 0 "
+                                 "everywhere; name the ones to cost with constraints=[...]"
+                                 + ("" if self.mode == "sample" else " or use mode='sample'"))
         else:
             if isinstance(names, str):
                 names = [names]
@@ -320,6 +385,50 @@ class InferredConstraintCost(gym.Wrapper):
                     raise ValueError(f"mode 'penalty': the {self.quantile:g}-quantile of {fnames[j]!r}'s penalty given "
                                      f"c=1 is {qv:g}, not a penalty (<= 0); use mode='indicator'")
                 self.penalty[fnames[j]] = qv
+
+    def _setup_conservative(self, safe_states: ArrayLike | str | None) -> None:
+        """``conservative`` mode: the boundary of each used wall (``axis_halfspace``) at the edge of its identified
+        region nearest the safe side (just beyond the good demonstrations' states when they are known)."""
+        self.conservative_location: dict[str, NDArray[np.float64]] = {}
+        self.boundary_source: dict[str, str] = {}
+        source = "the posterior's draws (the lowest / highest threshold with c = 1)"
+        if isinstance(safe_states, str):
+            if safe_states != "auto":
+                raise ValueError(f"safe_states: expected an (n, k) array, 'auto' or None, got {safe_states!r}")
+            safe_states = None
+            if self.mode == "conservative" and any(self._cons[m].family == "axis_halfspace" for m in self.used_param):
+                safe_states, why = _good_demonstration_states(self.posterior)
+                source = why if safe_states is not None else f"{source}; {why}"
+        elif safe_states is not None:
+            source = "safe_states (given)"
+        if safe_states is not None and self.mode != "conservative":
+            raise ValueError(f"safe_states: used only by mode 'conservative', not {self.mode!r}")
+        safe = None
+        if safe_states is not None:
+            safe = np.asarray(safe_states, dtype=np.float64)
+            if safe.ndim == 1:
+                safe = safe[:, None]
+            if safe.ndim != 2 or safe.shape[0] == 0 or not np.all(np.isfinite(safe)):
+                raise ValueError(f"safe_states: expected a non-empty finite (n, k) array, got shape {np.shape(safe_states)}")
+        if self.mode != "conservative":
+            return
+        for m in self.used_param:
+            c = self._cons[m]
+            if c.family != "axis_halfspace":
+                continue
+            j = self.d_known + m
+            th = self._theta[m][self._ind[:, j], 0]
+            th = th[np.isfinite(th)]
+            above = getattr(c, "direction", ">=") == ">="
+            edge = float(th.min() if above else th.max())
+            if safe is not None:
+                k = c.dims[0]
+                if k >= safe.shape[1]:
+                    raise ValueError(f"safe_states: {safe.shape[1]} column(s); constraint {c.name!r} uses column {k}")
+                reach = float(safe[:, k].max() if above else safe[:, k].min())
+                edge = float(np.nextafter(reach, math.inf if above else -math.inf))
+            self.conservative_location[c.name] = np.array([edge])
+            self.boundary_source[c.name] = source
 
     def _setup_step_functions(self, env: gym.Env, features: StepFunction | None, state: StepFunction | None) -> None:
         need_f = bool(self.used_known)
@@ -418,6 +527,8 @@ class InferredConstraintCost(gym.Wrapper):
             v = phi[:, j]  # type: ignore[index]
             if self.mode == "indicator":
                 out = np.maximum(out, (v != 0).astype(float))
+            elif self.mode == "conservative":
+                out = np.maximum(out, self.p_constraint[j] * (v != 0))
             elif self.mode == "sample":
                 if self._ind[n, j]:
                     out += v
@@ -434,6 +545,16 @@ class InferredConstraintCost(gym.Wrapper):
                 th = self._theta[m]
                 N = self._ind.shape[0]
                 out += np.array([np.count_nonzero(on & _inside_many(c, row, th)) / N for row in s])  # type: ignore[union-attr]
+                continue
+            if self.mode == "conservative":
+                if name in self.conservative_location:
+                    inside = _inside_rows(c, s, self.conservative_location[name])  # type: ignore[arg-type]
+                else:  # the union of the active draws' regions
+                    on = self._ind[:, j]
+                    th = self._theta[m][on]
+                    th = th[np.all(np.isfinite(th), axis=1)]
+                    inside = np.array([bool(_inside_many(c, row, th).any()) for row in s])  # type: ignore[union-attr]
+                out = np.maximum(out, self.p_constraint[j] * inside)
                 continue
             if self.mode == "sample":
                 if not self._ind[n, j]:
@@ -471,10 +592,16 @@ class InferredConstraintCost(gym.Wrapper):
                 t["family"] = c.family
                 t["dims"] = list(c.dims)
                 t["median_location"] = dict(zip(c.param_names(), self.location[name].tolist()))
+                if name in self.conservative_location:
+                    t["conservative_location"] = dict(zip(c.param_names(), self.conservative_location[name].tolist()))
+                    t["boundary_from"] = self.boundary_source[name]
+                elif self.mode == "conservative":
+                    t["conservative_region"] = "union of the active draws' regions"
             if name in self.penalty:
                 t["penalty_quantile"] = self.penalty[name]
             terms.append(t)
         return {"mode": self.mode, "quantile": self.quantile if self.mode == "penalty" else None,
+                **({"threshold": self.threshold} if self.mode == "probability" else {}),
                 "fold_into_reward": self.fold_coefficient, "terms": terms}
 
     # ------------------------------------------------------------------ gym API

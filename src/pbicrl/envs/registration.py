@@ -8,6 +8,11 @@ id                              class
 ``pbicrl/PointMass-v0``         :class:`pbicrl.envs.point_mass.PointMassEnv`
 ``pbicrl/FetchReachConstrained-v0`` :class:`pbicrl.envs.fetch_reach.FetchReachConstrainedEnv`
 ``pbicrl/Grid3x3-v0``           :class:`pbicrl.envs.grid.GridEnv`
+``pbicrl/BlockedHalfCheetah-v0`` :class:`pbicrl.envs.icrl_benchmark.BlockedHalfCheetahEnv`
+``pbicrl/BlockedAnt-v0``        :class:`pbicrl.envs.icrl_benchmark.BlockedAntEnv`
+``pbicrl/BiasedPendulum-v0``    :class:`pbicrl.envs.icrl_benchmark.BiasedPendulumEnv`
+``pbicrl/BlockedWalker-v0``     :class:`pbicrl.envs.icrl_benchmark.BlockedWalkerEnv`
+``pbicrl/BlockedSwimmer-v0``    :class:`pbicrl.envs.icrl_benchmark.BlockedSwimmerEnv`
 =============================== ==============================================
 
 Time limits are handled inside the environments (``truncated``), so no ``TimeLimit``
@@ -22,6 +27,12 @@ ENV_IDS: dict[str, str] = {
     "pbicrl/PointMass-v0": "pbicrl.envs.point_mass:PointMassEnv",
     "pbicrl/FetchReachConstrained-v0": "pbicrl.envs.fetch_reach:FetchReachConstrainedEnv",
     "pbicrl/Grid3x3-v0": "pbicrl.envs.grid:GridEnv",
+    # the ICRL benchmark's virtual tasks (Liu et al., ICLR 2023); pbicrl.envs.icrl_benchmark.ICRL_TASKS
+    "pbicrl/BlockedHalfCheetah-v0": "pbicrl.envs.icrl_benchmark:BlockedHalfCheetahEnv",
+    "pbicrl/BlockedAnt-v0": "pbicrl.envs.icrl_benchmark:BlockedAntEnv",
+    "pbicrl/BiasedPendulum-v0": "pbicrl.envs.icrl_benchmark:BiasedPendulumEnv",
+    "pbicrl/BlockedWalker-v0": "pbicrl.envs.icrl_benchmark:BlockedWalkerEnv",
+    "pbicrl/BlockedSwimmer-v0": "pbicrl.envs.icrl_benchmark:BlockedSwimmerEnv",
 }
 
 

@@ -1,0 +1,572 @@
+"""Resumable training of the ICRL benchmark's reference policies (PPO, PPO-Lagrangian with the true cost).
+
+:func:`train_policy` trains one (task, method, seed) of :mod:`pbicrl.envs.icrl_benchmark` into a run directory
+with :class:`pbicrl.baselines.ppo_lagrangian.PPOLagrangian`; rerunning it with the same arguments continues from
+the last checkpoint. Command line: ``python -m pbicrl.cli.icrl_benchmark --out DIR --run TASK:METHOD:SEED:STEPS
+[--run ...]`` (:mod:`pbicrl.cli.icrl_benchmark`). Methods:
+
+``ppo``
+    PPO without a cost (the multiplier stays 0; the true cost is still recorded).
+``ppo_lag_true``
+    PPO-Lagrangian with the benchmark's true cost (``info["cost"]``, the strict wall indicator on the post-step
+    ``obs[0]``), budget 0: the expert / upper reference of the benchmark.
+
+Hyperparameters follow the benchmark's expert configs (``train_ppo_lag_*.yaml``, note section 3) where our PPO has
+the same knob: 5 environments x 2048 steps per rollout, [64, 64] tanh networks, gamma 0.99 (reward and cost),
+the task's learning rate, epochs, minibatch size, GAE lambda, clip, target KL, initial multiplier :math:`\\nu_0`
+(also its lower bound) and multiplier learning rate, entropy 0, value coefficient 0.5, gradient clip 0.5,
+initial log std 0 (SB3's default). As the benchmark, the multiplier :math:`\\nu = \\mathrm{softplus}(\\theta)` takes
+one Adam step per rollout on the rollout's mean raw per-step cost (budget 0) and never falls below :math:`\\nu_0`
+(``lagrange_optimizer="adam"``, ``lagrange_min``), and the cost critic sees costs divided by the running std of
+the discounted cost return (``scale_cost``). Differences (recorded in ``config.json`` and
+``docs/benchmarks/icrl/README.md``):
+
+* the cost enters the clipped surrogate through the combined advantage :math:`(A_r - \\nu A_c)/(1+\\nu)`; the
+  benchmark clips the reward surrogate only and adds :math:`\\nu\\,\\mathrm{mean}(A_c \\cdot \\text{ratio})` unclipped
+  (both scaled by :math:`1/(1+\\nu)`);
+* one GAE lambda serves reward and cost (Swimmer's cost lambda 0.95 becomes 0.9);
+* the target KL is checked after each epoch on the epoch's mean KL, against 1.5 x the config's value (SB3 stops
+  within an epoch when the KL exceeds 1.5 x ``target_kl``);
+* gradients are clipped per network (policy, reward critic, cost critic) rather than jointly;
+* time-limit ends are bootstrapped with the critics (the original treated them as terminal);
+* the environments are not reset at every 200k-step "iteration" (there are no iterations here).
+
+Run directory (``<out>/<task>/<method>/seed<k>/``):
+
+``config.json``
+    task, method, seed, PPO config, evaluation settings (written once; a rerun with other settings is refused).
+``checkpoint.pt``
+    resume point, written atomically every ``checkpoint_every`` updates (tensors and plain values only, read with
+    ``torch.load(weights_only=True)``), with the byte lengths of the two logs at that moment, so that a resumed run
+    first cuts the logs back to them and no episode is logged twice.
+``curve.jsonl``
+    one line per finished training episode (stochastic policy), exactly the note's section 2 per-episode metrics:
+    ``reward`` (sum of rewards), ``reward_nc`` (sum of rewards before the first step with cost 1; equals
+    ``reward`` when nothing is violated), ``constraint`` (1 if any step violated), plus ``cost_sum``,
+    ``length``, ``x_min``, ``x_max``, ``steps`` (environment steps at the end of the update it finished in) and
+    ``update``.
+``eval.jsonl``
+    every ``eval_every`` updates and at the end: ``eval_episodes`` stochastic-policy episodes on fresh
+    environments (their per-episode metrics and means; ``violation_rate`` = mean of ``constraint``).
+``best.pt``
+    the agent at the evaluation with the highest mean ``reward_nc`` (the benchmark's ``best_nominal_model``).
+``progress.json``, ``done.json``
+    the latest summary; written when the target number of steps is reached.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "CHECKPOINT",
+    "METHODS",
+    "CheckpointPolicy",
+    "EpisodeRecorder",
+    "demonstrations_dataset",
+    "episode_metrics",
+    "expert_config",
+    "load_run_checkpoint",
+    "rollout_episodes",
+    "train_policy",
+]
+
+CHECKPOINT = "checkpoint.pt"
+METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true")
+_EVAL_EPISODES = {"pendulum": 100}  # the note: 10 evaluation episodes per iteration, 100 for the pendulum
+
+# The expert configs of note section 3: lr, epochs, minibatch, GAE lambda (reward), clip, target KL, nu_0, nu lr.
+_EXPERT: dict[str, dict[str, float]] = {
+    "halfcheetah": dict(lr=3e-4, n_epochs=10, minibatch_size=64, gae_lambda=0.95, clip=0.2, target_kl=0.01,
+                        nu0=1.0, nu_lr=0.1),
+    "ant": dict(lr=3e-5, n_epochs=20, minibatch_size=128, gae_lambda=0.9, clip=0.4, target_kl=0.02, nu0=0.1,
+                nu_lr=0.05),
+    "pendulum": dict(lr=1e-4, n_epochs=20, minibatch_size=128, gae_lambda=0.9, clip=0.4, target_kl=0.02,
+                     nu0=0.1, nu_lr=0.05),
+    "walker": dict(lr=3e-4, n_epochs=10, minibatch_size=64, gae_lambda=0.95, clip=0.2, target_kl=0.01, nu0=1.0,
+                   nu_lr=0.1),
+    "swimmer": dict(lr=3e-4, n_epochs=20, minibatch_size=128, gae_lambda=0.9, clip=0.4, target_kl=0.01, nu0=1.0,
+                    nu_lr=0.1),
+}
+
+
+def expert_config(task: str, method: str) -> Any:
+    """The :class:`~pbicrl.baselines.ppo_lagrangian.PPOLagConfig` of ``method`` on ``task`` (see the module
+    docstring for what differs from the benchmark's expert config)."""
+    from pbicrl.baselines.ppo_lagrangian import PPOLagConfig
+    from pbicrl.envs.icrl_benchmark import icrl_task
+
+    name = icrl_task(task).name
+    _check_method(method)
+    h = _EXPERT[name]
+    lag = method == "ppo_lag_true"
+    return PPOLagConfig(
+        n_envs=5, n_steps=2048, gamma=0.99, cost_gamma=0.99, gae_lambda=h["gae_lambda"], clip=h["clip"],
+        lr=h["lr"], n_epochs=int(h["n_epochs"]), minibatch_size=int(h["minibatch_size"]), hidden=(64, 64),
+        init_log_std=0.0, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, target_kl=1.5 * h["target_kl"],
+        cost_budget=0.0, lagrange_lr=h["nu_lr"], lagrange_init=h["nu0"] if lag else 0.0,
+        lagrange_min=h["nu0"] if lag else 0.0, lagrange_max=100.0, normalize_obs=True, scale_reward=True,
+        torch_threads=1, episode_cost="step", lagrange_optimizer="adam" if lag else "sgd", scale_cost=lag,
+    ).validate()
+
+
+def _check_method(method: str) -> None:
+    if method not in METHODS:
+        raise ValueError(f"method: unknown method {method!r}; expected one of {list(METHODS)}")
+
+
+def episode_metrics(rewards: Sequence[float], costs: Sequence[float]) -> dict[str, float | int]:
+    """The benchmark's per-episode metrics (note section 2) of one episode's per-step rewards and costs.
+
+    Returns
+    -------
+    dict
+        ``reward`` = :math:`\\sum_t r_t`; ``reward_nc`` = the sum over the steps *before* the first step with a
+        positive cost (the violating step excluded; equals ``reward`` without a violation); ``constraint`` = 1 if
+        any step has a positive cost, else 0; ``cost_sum``; ``length``.
+    """
+    r = np.asarray(rewards, dtype=np.float64).reshape(-1)
+    c = np.asarray(costs, dtype=np.float64).reshape(-1)
+    if r.shape != c.shape:
+        raise ValueError(f"episode_metrics: {r.size} rewards but {c.size} costs")
+    hit = np.flatnonzero(c > 0)
+    first = int(hit[0]) if hit.size else r.size
+    return {"reward": float(r.sum()), "reward_nc": float(r[:first].sum()), "constraint": int(hit.size > 0),
+            "cost_sum": float(c.sum()), "length": int(r.size)}
+
+
+def _make_recorder_class() -> type:
+    import gymnasium as gym
+
+    class _EpisodeRecorder(gym.Wrapper):
+        """Appends :func:`episode_metrics` (plus ``x_min``, ``x_max`` of ``obs[0]``) of every finished episode to
+        ``sink``; the cost is ``info["cost"]``."""
+
+        def __init__(self, env: Any, sink: list[dict[str, Any]]) -> None:
+            super().__init__(env)
+            self.sink = sink
+            self._r: list[float] = []
+            self._c: list[float] = []
+            self._x: list[float] = []
+
+        def reset(self, **kwargs: Any) -> Any:
+            self._r, self._c, self._x = [], [], []
+            return self.env.reset(**kwargs)
+
+        def step(self, action: Any) -> Any:
+            obs, r, term, trunc, info = self.env.step(action)
+            self._r.append(float(r))
+            self._c.append(float(info["cost"]))
+            self._x.append(float(np.asarray(obs).reshape(-1)[0]))
+            if term or trunc:
+                m = episode_metrics(self._r, self._c)
+                m.update(x_min=min(self._x), x_max=max(self._x))
+                self.sink.append(m)
+                self._r, self._c, self._x = [], [], []
+            return obs, r, term, trunc, info
+
+    return _EpisodeRecorder
+
+
+_RECORDER: type | None = None
+
+
+def EpisodeRecorder(env: Any, sink: list[dict[str, Any]]) -> Any:  # noqa: N802 - a class factory (lazy gymnasium)
+    """Wrap ``env`` so that each finished episode's :func:`episode_metrics` (and ``x_min``/``x_max``) is appended
+    to ``sink``."""
+    global _RECORDER
+    if _RECORDER is None:
+        _RECORDER = _make_recorder_class()
+    return _RECORDER(env, sink)
+
+
+def _make_env(task: str) -> Any:
+    import gymnasium as gym
+
+    from pbicrl.envs import register_envs
+    from pbicrl.envs.icrl_benchmark import icrl_task
+
+    register_envs()
+    return gym.make(icrl_task(task).env_id)
+
+
+def _truncate(path: Path, size: int) -> None:
+    if path.exists() and path.stat().st_size > size:
+        with open(path, "r+b") as fh:
+            fh.truncate(size)
+
+
+def _append_lines(path: Path, rows: list[dict[str, Any]]) -> int:
+    """Append JSON lines, flush to disk; return the file's new size."""
+    with open(path, "a", encoding="utf-8") as fh:
+        for row in rows:
+            fh.write(json.dumps(row, allow_nan=True) + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    return path.stat().st_size
+
+
+def load_run_checkpoint(path: Path) -> dict[str, Any]:
+    """Read a run's checkpoint with ``torch.load(weights_only=True)``; errors name the file."""
+    import pickle
+
+    import torch
+
+    try:
+        obj = torch.load(path, weights_only=True, map_location="cpu")
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise ValueError(f"out: {path} cannot be loaded safely ({type(exc).__name__}: {first[:200]}); delete it to "
+                         "start the run afresh") from None
+    if not isinstance(obj, dict) or "agent" not in obj:
+        raise ValueError(f"out: {path} is not a checkpoint of pbicrl.experiments.icrl_benchmark (no 'agent')")
+    return obj
+
+
+def _evaluate(agent: Any, task: str, n_episodes: int, seed: int) -> dict[str, Any]:
+    """``n_episodes`` stochastic-policy episodes (seeded) with the benchmark's per-episode metrics."""
+    import torch
+
+    sink: list[dict[str, Any]] = []
+    env = EpisodeRecorder(_make_env(task), sink)
+    gen = torch.Generator().manual_seed(seed)
+    try:
+        for k in range(n_episodes):
+            obs, _ = env.reset(seed=seed + k)
+            while True:
+                a = agent.act(np.asarray(obs, dtype=np.float64)[None], deterministic=False, generator=gen)[0]
+                obs, _, term, trunc, _ = env.step(a)
+                if term or trunc:
+                    break
+    finally:
+        env.close()
+    keys = ("reward", "reward_nc", "constraint", "cost_sum", "length")
+    means = {k: float(np.mean([m[k] for m in sink])) for k in keys}
+    means["violation_rate"] = means.pop("constraint")
+    return {**means, "episodes": sink}
+
+
+def _last_mean(rows: list[dict[str, Any]], key: str, n: int = 100) -> float | None:
+    """Mean of ``key`` over the last ``n`` rows (None without rows, so the JSON stays strict)."""
+    vals = [r[key] for r in rows[-n:]]
+    return float(np.mean(vals)) if vals else None
+
+
+def _fmt(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.2f}"
+
+
+def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str], total_steps: int, *,
+                 checkpoint_every: int = 2, eval_every: int = 10, eval_episodes: int | None = None,
+                 config_overrides: dict[str, Any] | None = None, log: Callable[[str], None] | None = print,
+                 max_seconds: float | None = None) -> Path:
+    """Train (or continue training) one policy of the ICRL benchmark.
+
+    Parameters
+    ----------
+    task : str
+        ``halfcheetah``, ``ant``, ``pendulum``, ``walker``, ``swimmer`` (or a ``pbicrl/...`` id).
+    method : {"ppo", "ppo_lag_true"}
+    seed : int
+    out : path
+        Root of the runs; the run directory is ``out/<task>/<method>/seed<seed>``.
+    total_steps : int
+        Target number of environment steps (a total: a rerun continues to it; a larger value extends a finished
+        run).
+    checkpoint_every, eval_every : int
+        Updates (rollouts of 5 x 2048 steps by default) between checkpoints and between evaluations.
+    eval_episodes : int, optional
+        Evaluation episodes (default 10; 100 for the pendulum, as the benchmark).
+    config_overrides : dict, optional
+        Fields of :func:`expert_config` to replace (e.g. ``n_steps`` for short tests); part of the run's identity.
+    log : callable or None
+        Progress lines (``print`` by default).
+    max_seconds : float, optional
+        Stop (after a checkpoint) once this much wall time has passed in this call.
+
+    Returns
+    -------
+    Path
+        The run directory.
+    """
+    from pbicrl import __version__
+    from pbicrl._atomic import write_json
+    from pbicrl.baselines.icl.checkpoint import save_checkpoint
+    from pbicrl.baselines.ppo_lagrangian import PPOLagrangian
+    from pbicrl.envs.icrl_benchmark import icrl_task
+
+    spec = icrl_task(task)
+    _check_method(method)
+    if int(seed) != seed or seed < 0:
+        raise ValueError(f"seed: must be an integer >= 0, got {seed!r}")
+    if int(total_steps) != total_steps or total_steps < 1:
+        raise ValueError(f"total_steps: must be an integer >= 1, got {total_steps!r}")
+    for name, v in (("checkpoint_every", checkpoint_every), ("eval_every", eval_every)):
+        if int(v) != v or v < 1:
+            raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+    n_eval = int(eval_episodes if eval_episodes is not None else _EVAL_EPISODES.get(spec.name, 10))
+    if n_eval < 1:
+        raise ValueError(f"eval_episodes: must be >= 1, got {eval_episodes!r}")
+    cfg = expert_config(spec.name, method)
+    if config_overrides:
+        unknown = set(config_overrides) - set(cfg.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"config_overrides: unknown PPO options {sorted(unknown)}")
+        cfg = replace(cfg, **config_overrides).validate()
+    say = log or (lambda _s: None)
+
+    run = Path(out) / spec.name / method / f"seed{int(seed)}"
+    run.mkdir(parents=True, exist_ok=True)
+    identity = {"task": spec.name, "env_id": spec.env_id, "method": method, "seed": int(seed), "ppo": cfg.to_dict(),
+                "eval_episodes": n_eval, "eval_every": int(eval_every)}
+    cfg_path = run / "config.json"
+    if cfg_path.exists():
+        old = json.loads(cfg_path.read_text(encoding="utf-8"))
+        old_id = {k: old.get(k) for k in identity}
+        if old_id != json.loads(json.dumps(identity)):
+            diff = sorted(k for k in identity if old_id.get(k) != json.loads(json.dumps(identity[k])))
+            raise ValueError(f"out: {run} holds a run with other settings ({', '.join(diff)}); use another --out "
+                             "or delete it")
+    else:
+        write_json(cfg_path, {**identity, "pbicrl_version": __version__,
+                              "note": "ICRL benchmark reference policy; see pbicrl.experiments.icrl_benchmark"})
+
+    lock = run / "lock"
+    _acquire(lock)
+    try:
+        sink: list[dict[str, Any]] = []
+        coord_fn = lambda o, info: np.asarray([o[0]], dtype=np.float64)  # noqa: E731
+        if method == "ppo_lag_true":
+            cost_fn = lambda xs: spec.cost(np.asarray(xs)[:, 0])  # noqa: E731
+        else:
+            cost_fn = lambda xs: np.zeros(np.asarray(xs).shape[0])  # noqa: E731
+        agent = PPOLagrangian(lambda: EpisodeRecorder(_make_env(spec.name), sink), coord_fn, cost_fn, cfg,
+                              seed=int(seed), fused_optimizer=True)
+        curve, evals = run / "curve.jsonl", run / "eval.jsonl"
+        state: dict[str, Any] = {"curve_bytes": 0, "eval_bytes": 0, "episodes": 0, "best_reward_nc": -math.inf,
+                                 "wall_s": 0.0, "evals": 0}
+        ck = run / CHECKPOINT
+        if ck.exists():
+            obj = load_run_checkpoint(ck)
+            agent.load_state_dict(obj["agent"])
+            state.update({k: obj[k] for k in state if k in obj})
+            say(f"[{spec.name}/{method}/seed{seed}] resumed at {agent.num_steps} steps ({state['episodes']} episodes)")
+        _truncate(curve, int(state["curve_bytes"]))
+        _truncate(evals, int(state["eval_bytes"]))
+        if not curve.exists():
+            curve.touch()
+        if not evals.exists():
+            evals.touch()
+        if agent.num_steps >= total_steps and (run / "done.json").exists():
+            say(f"[{spec.name}/{method}/seed{seed}] already done ({agent.num_steps} steps)")
+            return run
+
+        t_start = time.perf_counter()
+        wall0 = float(state["wall_s"])
+        recent: list[dict[str, Any]] = []
+
+        def save(final: bool = False) -> None:
+            state["curve_bytes"] = curve.stat().st_size
+            state["eval_bytes"] = evals.stat().st_size
+            state["wall_s"] = wall0 + time.perf_counter() - t_start
+            save_checkpoint({"agent": agent.state_dict(), **state}, ck)
+
+        def evaluate() -> None:
+            res = _evaluate(agent, spec.name, n_eval, seed=10_000 * (int(seed) + 1) + 1000 * int(state["evals"]))
+            state["evals"] = int(state["evals"]) + 1
+            row = {"update": agent.num_updates, "steps": agent.num_steps, "lam": agent.lam, **res}
+            _append_lines(evals, [row])
+            if res["reward_nc"] > state["best_reward_nc"]:
+                state["best_reward_nc"] = res["reward_nc"]
+                save_checkpoint({"agent": agent.state_dict(), "eval": {k: v for k, v in row.items()
+                                                                        if k != "episodes"}}, run / "best.pt")
+            say(f"[{spec.name}/{method}/seed{seed}] eval @ {agent.num_steps}: reward {res['reward']:.1f} "
+                f"reward_nc {res['reward_nc']:.1f} violation_rate {res['violation_rate']:.2f}")
+
+        def callback(ag: Any, info: dict[str, Any]) -> bool:
+            rows = []
+            for m in sink:
+                state["episodes"] = int(state["episodes"]) + 1
+                rows.append({"episode": state["episodes"], "steps": ag.num_steps, "update": ag.num_updates, **m})
+            sink.clear()
+            if rows:
+                _append_lines(curve, rows)
+                recent.extend(rows)
+                del recent[:-100]
+            if ag.num_updates % eval_every == 0:
+                evaluate()
+            stop = max_seconds is not None and time.perf_counter() - t_start > max_seconds
+            if ag.num_updates % checkpoint_every == 0 or stop or ag.num_steps >= total_steps:
+                save()
+                elapsed = time.perf_counter() - t_start
+                write_json(run / "progress.json", {
+                    "steps": ag.num_steps, "updates": ag.num_updates, "episodes": state["episodes"], "lam": ag.lam,
+                    "last100_reward": _last_mean(recent, "reward"), "last100_reward_nc": _last_mean(recent, "reward_nc"),
+                    "last100_violation_rate": _last_mean(recent, "constraint"), "wall_s": state["wall_s"],
+                    "seconds_this_call": elapsed, "total_steps_target": int(total_steps)})
+                say(f"[{spec.name}/{method}/seed{seed}] {ag.num_steps} steps, lam {ag.lam:.3f}, last-100 reward "
+                    f"{_fmt(_last_mean(recent, 'reward'))} reward_nc {_fmt(_last_mean(recent, 'reward_nc'))} viol "
+                    f"{_fmt(_last_mean(recent, 'constraint'))}, kl {info['approx_kl']:.4f} ep {info['epochs']}, "
+                    f"{info['seconds']:.1f}s/update")
+            return not stop
+
+        agent.learn(int(total_steps), callback=callback)
+        if agent.num_steps >= total_steps:
+            if agent.num_updates % eval_every != 0:
+                evaluate()
+            save(final=True)
+            write_json(run / "done.json", {"steps": agent.num_steps, "updates": agent.num_updates,
+                                           "episodes": state["episodes"], "wall_s": state["wall_s"],
+                                           "best_eval_reward_nc": state["best_reward_nc"]})
+            say(f"[{spec.name}/{method}/seed{seed}] done: {agent.num_steps} steps in {state['wall_s']:.0f}s")
+        agent.close()
+        return run
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _acquire(lock: Path) -> None:
+    """Create ``lock`` holding this process id; refuse while another live process holds it."""
+    from pbicrl._atomic import pid_alive
+
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid = int(lock.read_text().strip() or "0")
+            except (OSError, ValueError):
+                pid = 0
+            if pid and pid != os.getpid() and pid_alive(pid):
+                raise RuntimeError(f"out: {lock.parent} is being trained by process {pid}; wait for it or stop it")
+            lock.unlink(missing_ok=True)  # stale: its process is gone
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(str(os.getpid()))
+        return
+    raise RuntimeError(f"out: could not take the lock {lock}")
+
+
+class CheckpointPolicy:
+    """The policy of a checkpoint of :func:`train_policy` (``checkpoint.pt`` or ``best.pt``), without its
+    environments: ``policy(obs) -> action`` (the Gaussian's mean, or a draw when ``deterministic=False``).
+
+    Parameters
+    ----------
+    path : path
+        The checkpoint (read with ``torch.load(weights_only=True)``).
+    deterministic : bool
+        Act with the mean (default, as the benchmark generates its demonstrations) or draw from the policy.
+    seed : int
+        Seed of the action noise (``deterministic=False``).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, deterministic: bool = True, seed: int = 0) -> None:
+        import torch
+
+        from pbicrl.baselines.ppo_lagrangian import ActorCritic
+
+        st = load_run_checkpoint(Path(path))["agent"]
+        cfg = st["config"]
+        pi_w = st["ac"]["pi.0.weight"]
+        self.obs_dim = int(pi_w.shape[1])
+        self.act_dim = int(st["ac"]["log_std"].shape[0])
+        self.ac = ActorCritic(self.obs_dim, self.act_dim, tuple(cfg["hidden"]), float(cfg["init_log_std"]))
+        self.ac.load_state_dict(st["ac"])
+        self.ac.eval()
+        self.normalize = bool(cfg.get("normalize_obs", True))
+        self.mean = st["obs_rms"]["mean"].numpy().astype(np.float64)
+        self.std = np.sqrt(st["obs_rms"]["var"].numpy().astype(np.float64) + 1e-8)
+        self.deterministic = bool(deterministic)
+        self._gen = torch.Generator().manual_seed(int(seed))
+        self.steps = int(st["num_steps"])
+
+    def __call__(self, obs: Any) -> NDArray[np.float64]:
+        import torch
+
+        o = np.asarray(obs, dtype=np.float64).reshape(-1)
+        if o.shape != (self.obs_dim,):
+            raise ValueError(f"obs: expected shape ({self.obs_dim},), got {np.shape(obs)}")
+        x = np.clip((o - self.mean) / self.std, -10.0, 10.0) if self.normalize else o
+        with torch.no_grad():
+            d = self.ac.dist(torch.as_tensor(x[None], dtype=torch.float32))
+            a = d.mean if self.deterministic else d.mean + d.stddev * torch.randn(d.mean.shape, generator=self._gen)
+        return a.numpy()[0].astype(np.float64)  # the environment clips to its action box
+
+
+def rollout_episodes(task: str, policy: Callable[[Any], Any], episodes: int, *, seed: int = 0) -> list[dict[str, Any]]:
+    """Run ``episodes`` episodes of ``policy`` on ``task`` (reset seeds ``seed, seed + 1, ...``) and record them.
+
+    Returns
+    -------
+    list of dict
+        Per episode: ``features`` (T, d) (``info["features"]``, the reward's terms), ``x`` (T,) the post-step
+        ``obs[0]`` (the state the wall constrains), ``actions`` (T, a) clipped to the action box, ``obs`` (T+1, n)
+        raw observations from the reset on, ``rewards`` and ``costs`` (T,), ``seed``, and the benchmark's metrics
+        (:func:`episode_metrics`).
+    """
+    if int(episodes) < 1:
+        raise ValueError(f"episodes: must be >= 1, got {episodes!r}")
+    env = _make_env(task)
+    low, high = env.action_space.low, env.action_space.high
+    out = []
+    try:
+        for k in range(int(episodes)):
+            obs, _ = env.reset(seed=int(seed) + k)
+            obs_l, feats, xs, acts, rews, costs = [np.asarray(obs, dtype=np.float64)], [], [], [], [], []
+            while True:
+                a = np.clip(np.asarray(policy(obs), dtype=np.float64), low, high)
+                obs, r, term, trunc, info = env.step(a)
+                obs_l.append(np.asarray(obs, dtype=np.float64))
+                feats.append(np.asarray(info["features"], dtype=np.float64))
+                xs.append(float(np.asarray(obs).reshape(-1)[0]))
+                acts.append(a)
+                rews.append(float(r))
+                costs.append(float(info["cost"]))
+                if term or trunc:
+                    break
+            out.append({"features": np.stack(feats), "x": np.asarray(xs), "actions": np.stack(acts),
+                        "obs": np.stack(obs_l), "rewards": np.asarray(rews), "costs": np.asarray(costs),
+                        "seed": int(seed) + k, **episode_metrics(rews, costs)})
+    finally:
+        env.close()
+    return out
+
+
+def demonstrations_dataset(task: str, groups: dict[int, Sequence[dict[str, Any]]]) -> Any:
+    """A :class:`pbicrl.inference.data.Dataset` of recorded episodes (:func:`rollout_episodes`) in ranked groups.
+
+    ``groups[k]`` are the episodes of group ``k`` (1 = best). Features: the task's nominal features (the reward's
+    terms, with ``nominal_weights``); states: the post-step x (one column), which a parametric wall constraint
+    (``axis_halfspace`` on column 0) indexes; actions; ``env_id`` the task's Gymnasium id.
+    """
+    from pbicrl.envs.icrl_benchmark import icrl_task
+    from pbicrl.inference.data import Dataset
+
+    spec = icrl_task(task)
+    feats, states, acts, labels, offsets = [], [], [], [], [0]
+    for g in sorted(groups):
+        if int(g) != g or g < 1:
+            raise ValueError(f"groups: labels must be integers >= 1, got {g!r}")
+        for ep in groups[g]:
+            feats.append(np.asarray(ep["features"], dtype=np.float64))
+            states.append(np.asarray(ep["x"], dtype=np.float64)[:, None])
+            acts.append(np.asarray(ep["actions"], dtype=np.float64))
+            labels.append(int(g))
+            offsets.append(offsets[-1] + len(ep["x"]))
+    if len(set(labels)) < 2:
+        raise ValueError(f"groups: need episodes in at least two groups, got labels {sorted(set(labels))}")
+    return Dataset(features=np.concatenate(feats), offsets=np.asarray(offsets), group=np.asarray(labels),
+                   states=np.concatenate(states), actions=np.concatenate(acts),
+                   feature_names=spec.feature_names, nominal_weights=np.asarray(spec.nominal_weights),
+                   env_id=spec.env_id)
