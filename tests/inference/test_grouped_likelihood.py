@@ -316,3 +316,24 @@ def test_large_groups_keep_the_per_item_path_when_binning_does_not_pay():
     assert _kernels._gb_moments(a, np.arange(n))[2] == 0
     a[5] = np.inf
     assert _kernels._gb_moments(a, np.arange(n))[2] == 0
+
+
+@pytest.mark.parametrize("n", [128, 316, 1500])
+def test_small_concentrated_groups_binned_match_the_per_item_terms(n):
+    """From _GB_MIN = 64 items a group whose returns are concentrated (the shipped point mass: 316 items within 0.1)
+    is binned; the likelihood equals the per-item terms to 1e-12 (direct and complement forms)."""
+    assert _kernels._GB_MIN <= n
+    rng = np.random.default_rng(n)
+    for spread, shift in ((0.02, -2.0), (0.3, 1.0), (0.02, 12.0)):
+        a = rng.normal(size=n) * spread + rng.normal()
+        cen, mom, nb = _kernels._gb_moments(a, np.arange(n))
+        if spread == 0.02:
+            assert nb > 0  # binning pays for a tight group
+        elif nb == 0:
+            continue  # too spread for its size: the per-item path (the cost rule of _gb_moments)
+        log_lam = np.logaddexp.reduce(a) + shift
+        expect = _kernels.group_term(a - log_lam, np.empty((4, n)))
+        got = _kernels._gb_direct(n, -log_lam, cen, mom, nb)
+        if np.isnan(got):
+            got = _kernels._gb_comp(-log_lam, cen, mom, nb)
+        assert got == pytest.approx(expect, rel=1e-12)
