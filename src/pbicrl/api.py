@@ -92,7 +92,7 @@ def infer(
     jobs: int | None = None,
     sigma: float = _D.sigma,
     f_s: int = _D.f_s,
-    p_flip: float = _D.p_flip,
+    p_flip: float | None = _D.p_flip,
     init_scale: float = _D.init_scale,
     init_range: Sequence[float] = tuple(_D.init_range),
     prior: str = _D.prior,
@@ -230,8 +230,11 @@ def infer(
                        ("max_time", max_time)):
         check_setting(key, value, where="infer")
     auto = iterations == "auto"
-    if p_joint is None:  # fixed-length runs keep the single-site moves of earlier releases (same chains)
+    # a run until converged moves the penalties more often; fixed-length runs keep the moves of earlier releases
+    if p_joint is None:
         p_joint = 0.3 if sampler == "pbicrl" and auto else 0.0
+    if p_flip is None:
+        p_flip = 0.3 if sampler == "pbicrl" and auto else 0.5
     _check_p_joint(p_joint, sampler)
     _check_groups(dataset)
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,

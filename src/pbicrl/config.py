@@ -57,6 +57,8 @@ class InferConfig:
         Iterations per chain (formerly ``n_iterations``), warm-up, thinning, independent chains (formerly
         ``n_chains``), random seed, worker processes (formerly ``n_jobs``; never changes the draws).
     sigma, f_s, p_flip, init_scale : sampler settings
+        ``p_flip`` default (None): 0.3 for the ``pbicrl`` sampler run until converged (more of the iterations move
+        the penalties, whose mixing limits the ESS), else 0.5.
     init_range : [low, high]
         ``authors`` sampler: initial penalties uniform on this range (the authors' code: [-30, -1] for point
         mass, [-100, -10] for Fetch-Reach).
@@ -123,7 +125,7 @@ class InferConfig:
     jobs: int | None = _setting(None, int, minimum=1)
     sigma: float = _setting(0.1, int, float)
     f_s: int = _setting(4, int, minimum=1)
-    p_flip: float = _setting(0.5, int, float)
+    p_flip: float | None = _setting(None, int, float)
     init_scale: float = _setting(1.0, int, float)
     init_range: list = _setting([-30.0, -1.0], list)
     likelihood: str = _setting("grouped", str)

@@ -47,7 +47,11 @@ def test_config_file_and_cli_override(data_path, tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--iterations", "0"], "expected a positive integer"),
+    (["--iterations", "0"], "expected 'auto' or a positive integer"),
+    (["--iterations", "forever"], "expected 'auto' or a positive integer"),
+    (["--target-rhat", "0.99"], "a number > 1"),
+    (["--max-time", "-5"], "a positive number"),
+    (["--target-ess", "nan"], "a positive number"),
     (["--margins", "1,2,3"], "3 groups need 2 consecutive gaps"),
     (["--nominal-weights", "1,2"], "nominal_weights: expected 4 values"),
     (["--sampler", "gibbs"], "invalid choice"),
@@ -78,7 +82,7 @@ def test_bad_config_and_data(tmp_path, data_path, capsys):
     assert "config key 'iteratons': unknown" in capsys.readouterr().err
     cfg.write_text('iterations = "many"\n')
     assert main(["infer", str(data_path), "--out", str(tmp_path / "o"), "--config", str(cfg)]) == 2
-    assert "config key 'iterations': expected int" in capsys.readouterr().err
+    assert "config key 'iterations': expected a number of iterations or \"auto\"" in capsys.readouterr().err
     bad = tmp_path / "bad.npz"
     np.savez(bad, features=np.ones((3, 2)), offsets=np.array([0, 1, 3]), group=np.array([1, 1]))
     assert main(["infer", str(bad), "--out", str(tmp_path / "o")]) == 2

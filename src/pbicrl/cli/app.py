@@ -81,7 +81,8 @@ def _add_infer(sub: Any) -> None:
     p.add_argument("--sigma", type=_positive_float, help=f"random-walk step (default {_D.sigma:g}; adapted for pbicrl)")
     p.add_argument("--fs", dest="f_s", type=_positive_int,
                    help=f"paper sampler: sampling frequency f_s (default {_D.f_s})")
-    p.add_argument("--p-flip", type=float, help=f"pbicrl sampler: probability of a flip move (default {_D.p_flip:g})")
+    p.add_argument("--p-flip", type=float, help="pbicrl sampler: probability of a flip move (default 0.3 with "
+                   "--iterations auto, else 0.5)")
     p.add_argument("--p-joint", type=float, help="pbicrl/bpl samplers: probability in [0, 1) of a joint step of all "
                    "active weights (adapted covariance; default 0.3 for pbicrl with --iterations auto, else 0)")
     p.add_argument("--prior", choices=["student-t", "flat", "normal"],

@@ -708,7 +708,11 @@ def _sample_auto(kernel: Kernel, rule: StoppingRule, seeds: Sequence[np.random.S
                 break
             rate = n_round / max(time.perf_counter() - t_round, 1e-9)  # iterations per chain per second
             ess = conv.min_ess if math.isfinite(conv.min_ess) and conv.min_ess > 0 else 1.0
-            need = kept * (rule.target_ess / ess - 1.0) * 1.15 if conv.max_rhat < rule.target_rhat else kept
+            # ESS grows with the draws, and R-hat - 1 shrinks about as 1 / ESS once the chains mix
+            need = kept * max(rule.target_ess / ess - 1.0,
+                              (conv.max_rhat - 1.0) / (rule.target_rhat - 1.0) - 1.0) * 1.15
+            if not math.isfinite(need) or conv.max_rhat > 1.0 + 10.0 * (rule.target_rhat - 1.0):
+                need = kept  # far from mixing: double
             n_round = int(max(need, 0.25 * kept, 200))
             n_round = min(n_round, int(kept), int(max(rate * (rule.max_time - elapsed), 100)))
             n_round = max(n_round, 100)
