@@ -46,8 +46,9 @@ trajectories it involves so that the shares of one draw sum to its total log-lik
   carries more of the term. The lower half goes to the members :math:`j \\in \\mathcal{R}_k` in proportion to
   their weight :math:`e^{a_j + m_{k\\ell(j)}} / \\Lambda_k` in :math:`\\Lambda_k`: a lower trajectory that
   nearly reaches group :math:`k` carries more. Every share has the sign of its term, each term's shares add
-  up to it, so the shares sum to :math:`\\sum_k \\log P_k`; with one trajectory per group they are exactly the
-  pairwise split of :math:`\\log\\sigma(a_i - m - a_j)`.
+  up to it, so the shares sum to :math:`\\sum_k \\log P_k`; with two groups of one trajectory each they are exactly
+  the pairwise split of :math:`\\log\\sigma(a_i - m - a_j)` (with more groups a term compares one trajectory
+  with all lower ones at once).
 """
 
 from __future__ import annotations
