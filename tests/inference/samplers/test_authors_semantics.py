@@ -1,0 +1,47 @@
+"""``--sampler authors`` follows the authors' code (issue 29, item 1): a feature that starts switched off has
+weight 0, and ``summary.json`` reports the authors' statistic (mean of the last 500 iterations) beside the
+mean over all kept draws."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pbicrl.inference.likelihood import PreferenceLikelihood
+from pbicrl.inference.samplers import SamplerSettings
+from pbicrl.inference.samplers.kernels import Kernel
+from pbicrl.inference.synthetic import make_problem
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_features_starting_off_have_weight_zero(seed):
+    ds = make_problem(10, violation_rate=0.4, seed=1).dataset
+    lik = PreferenceLikelihood.from_dataset(ds, likelihood="pairwise")
+    st = SamplerSettings(method="authors", n_iterations=10, burn_in=0, thin=1, init_range=(-30, -1))
+    pos = Kernel(lik, st).init(seed).position
+    c, w = np.asarray(pos[0]), np.asarray(pos[1])
+    assert np.all(w[c == 0] == 0.0)
+    assert np.all((w[c == 1] <= -1) & (w[c == 1] >= -30))
+    # the other samplers' initial states are untouched (the reference chains pin them)
+    paper = Kernel(lik, dataclasses.replace(st, method="paper")).init(seed).position
+    assert np.all(np.asarray(paper[0]) == c)
+
+
+def test_authors_statistic_is_the_mean_of_the_last_500_iterations():
+    from tests.inference.test_results import make_post, quiet
+
+    rng = np.random.default_rng(0)
+    ind = np.ones((2, 1000, 1), np.int8)
+    wp = np.cumsum(rng.normal(size=(2, 1000, 1)), axis=1) - 50.0  # a drifting chain
+    post = dataclasses.replace(quiet(make_post, ind, wp), method="authors", issue_warnings=False)
+    st = post.summary()["posterior"]["authors_statistic"]
+    expect = wp[:, -500:, 0].mean(axis=1)
+    assert st["per_chain"]["a"] == pytest.approx(expect.tolist())
+    assert st["value"]["a"] == pytest.approx(expect.mean())
+    assert st["posterior_mean"]["a"] == pytest.approx(wp.mean())
+    assert "authors' statistic" in post.table()
+    thinned = dataclasses.replace(post, settings=post.settings | {"thin": 10})
+    assert thinned.authors_statistic()["draws_per_chain"] == 50
+    assert "authors_statistic" not in quiet(make_post, ind, wp).summary()["posterior"]
