@@ -70,6 +70,7 @@ def test_infer_attaches_the_identification_of_its_pairs():
     post = pbicrl.infer(ds, likelihood="pairwise", pairs=5, pairs_seed=7, iterations=200, chains=1, seed=0,
                         progress=False)
     assert post.identified["pairs"]["n_pairs"] == 15 and post.identified["pairs"]["seed"] == 7
+    assert "one of the 15 sampled pairs the likelihood uses" in post.table(width=400)
     prefs = Preferences.from_groups(ds.group, None, protocol=5, seed=7)
     np.testing.assert_allclose(post.min_penalty(), _brute_min_penalty(ds, prefs), rtol=1e-5, atol=1e-6)
 

@@ -850,7 +850,7 @@ class Posterior(DrawsView):
             mp = "n/a" if n in skip else _num(mins[j], 8) if model[j] else "-"
             lo_d, med_d, hi_d = ends[j]
             iv = _interval(cs["low"][j], cs["high"][j], marks=(bool(lo_d), bool(hi_d)))
-            med = _num(cs["median"][j], 8) + ("*" if med_d else "")
+            med = _num(cs["median"][j], 8) + ("*" if med_d and math.isfinite(cs["median"][j]) else "")
             lines.append(f"{_cut(n, nw):<{nw}}  {a:>{w1}}  {b:>{w2}}  {mp:>8}  "
                          f"{med:>9}  {iv}  {diag.cells('feature', n, compact=True)}")
         psum = self.parameter_summary()
@@ -880,7 +880,9 @@ class Posterior(DrawsView):
         foot = [self._indicator_footer()]
         if self.identified is not None:
             a = self.identified.get("alpha")
-            foot.append("min|w_p|: smallest penalty with which the rankings order every cross-group pair"
+            sampled = isinstance(self.identified.get("pairs"), Mapping) and self.identified["pairs"].get("n_pairs")
+            foot.append("min|w_p|: smallest penalty with which the rankings order every "
+                        + (f"one of the {sampled:,} sampled pairs the likelihood uses" if sampled else "cross-group pair")
                         + (f" with probability >= {1 - a:g}" if _is_real(a) else "")
                         + " (identification); '-' = none")
         else:
