@@ -220,7 +220,7 @@ def infer(
     _check_groups(dataset)
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,
                                             nominal_weights=nominal_weights, beta=beta, power=power,
-                                            likelihood=likelihood)
+                                            likelihood=likelihood, distinct_pairs=sampler == "authors")
     cset = None
     if constraints:
         cset = ConstraintSet(tuple(c if isinstance(c, Constraint) else constraint_from_dict(c) for c in constraints),

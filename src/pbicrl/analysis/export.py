@@ -402,7 +402,7 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
         raise ValueError(f"export: the dataset's features {list(dataset.feature_names)} do not match the run's "
                          f"{names[:dk]}; pass the dataset the run was inferred from")
     protocol = str(settings.get("protocol", "all"))
-    hit = re.fullmatch(r"(\d+) per group pair", protocol)
+    hit = re.fullmatch(r"(\d+) per group pair( \(distinct\))?", protocol)
     if protocol != "all" and hit is None:
         raise ValueError(f"export: the run's preferences ({protocol!r}) cannot be rebuilt from the dataset; "
                          "pass likelihood=")
@@ -414,6 +414,7 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
     lik = PreferenceLikelihood.from_dataset(
         dataset, margins=run_margins(extra, dataset.n_groups),
         protocol="all" if hit is None else int(hit.group(1)), seed=int(recorded("pairs_seed", 0)),
+        distinct_pairs=hit is not None and hit.group(2) is not None,
         nominal_weights=None if wn is None else np.asarray(wn, dtype=np.float64),
         beta=recorded("beta", 1.0), power=recorded("power", 1.0), likelihood=kind)  # type: ignore[arg-type]
     cset = constraint_set_of(post, dataset)

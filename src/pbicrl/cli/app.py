@@ -189,7 +189,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             raise ValueError(f"--pairs: sampling {cfg.pairs} pairs per group pair applies to --likelihood pairwise "
                              "only; the grouped likelihood uses the whole ranking")
 
-        prefs = Preferences.from_groups(ds.group, cfg.margins, protocol=int(cfg.pairs), seed=cfg.pairs_seed)
+        prefs = Preferences.from_groups(ds.group, cfg.margins, protocol=int(cfg.pairs), seed=cfg.pairs_seed,
+                                        distinct=cfg.sampler == "authors")  # as infer samples them
     res = identify(ds, nominal_weights=cfg.nominal_weights, beta=cfg.beta, margins=cfg.margins, alpha=cfg.alpha,
                    candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset,  # type: ignore[arg-type]
                    preferences=prefs, pairs_seed=cfg.pairs_seed if prefs is not None else None)

@@ -141,11 +141,13 @@ class PreferenceLikelihood:
         preferences: Preferences | None = None,
         power: float | str = 1.0,
         likelihood: Literal["pairwise", "grouped"] = "pairwise",
+        distinct_pairs: bool = False,
     ) -> "PreferenceLikelihood":
         """Likelihood of a grouped dataset; nominal weights default to the dataset's (else zeros).
 
         ``likelihood="grouped"`` uses the whole ranking: ``protocol`` (sampled pairs) and ``power`` apply to
-        ``"pairwise"`` only and are errors otherwise.
+        ``"pairwise"`` only and are errors otherwise. ``distinct_pairs``: sampled pairs without replacement
+        (:meth:`Preferences.from_groups`, the authors' code).
         """
         if likelihood not in LIKELIHOODS:
             raise ValueError(f"likelihood: unknown kind {likelihood!r}; choose one of {', '.join(LIKELIHOODS)}")
@@ -157,7 +159,8 @@ class PreferenceLikelihood:
                 raise ValueError(f"power: a likelihood power ({power!r}) applies to likelihood='pairwise' only; "
                                  "the grouped likelihood counts each trajectory once and needs no tempering")
         if preferences is None:
-            preferences = Preferences.from_groups(dataset.group, margins, protocol=protocol, seed=seed)
+            preferences = Preferences.from_groups(dataset.group, margins, protocol=protocol, seed=seed,
+                                                  distinct=distinct_pairs)
         if nominal_weights is None:
             nominal_weights = dataset.nominal_weights if dataset.nominal_weights is not None else np.zeros(dataset.n_features)
         if power == "pairs":

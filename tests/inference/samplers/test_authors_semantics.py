@@ -45,3 +45,25 @@ def test_authors_statistic_is_the_mean_of_the_last_500_iterations():
     thinned = dataclasses.replace(post, settings=post.settings | {"thin": 10})
     assert thinned.authors_statistic()["draws_per_chain"] == 50
     assert "authors_statistic" not in quiet(make_post, ind, wp).summary()["posterior"]
+
+
+def test_authors_pairs_are_distinct_and_seeded_by_pairs_seed():
+    import pbicrl
+    from pbicrl.inference.preferences import PreferenceError, Preferences
+
+    g = np.repeat([1, 2, 3], [4, 5, 6])
+    p = Preferences.from_groups(g, None, protocol=20, seed=3, distinct=True)
+    I, J, _ = p.to_pair_list()
+    pairs = set(zip(I.tolist(), J.tolist()))
+    assert len(pairs) == I.size == 60  # 20 per group pair, none twice
+    assert all(g[i] < g[j] for i, j in pairs)
+    again = Preferences.from_groups(g, None, protocol=20, seed=3, distinct=True).to_pair_list()
+    assert np.array_equal(again[0], I) and np.array_equal(again[1], J)
+    with pytest.raises(PreferenceError, match="only 20"):
+        Preferences.from_groups(g, None, protocol=21, seed=3, distinct=True)
+    # the default (paper) protocol is unchanged: each side drawn with replacement
+    assert Preferences.from_groups(g, None, protocol=20, seed=3).protocol == "20 per group pair"
+    ds = make_problem(10, violation_rate=0.4, seed=1).dataset
+    post = pbicrl.infer(ds, sampler="authors", likelihood="pairwise", pairs=8, pairs_seed=5, iterations=200, chains=1,
+                        seed=0, progress=False)
+    assert post.settings["protocol"] == "8 per group pair (distinct)" and post.identified["pairs"]["seed"] == 5
