@@ -67,3 +67,25 @@ def test_authors_pairs_are_distinct_and_seeded_by_pairs_seed():
     post = pbicrl.infer(ds, sampler="authors", likelihood="pairwise", pairs=8, pairs_seed=5, iterations=200, chains=1,
                         seed=0, progress=False)
     assert post.settings["protocol"] == "8 per group pair (distinct)" and post.identified["pairs"]["seed"] == 5
+
+
+def test_authors_chain_keeps_switched_off_weights_at_zero_and_steps_a_weight_first():
+    from pbicrl.inference.samplers import sample
+
+    ds = make_problem(15, labels="violations", violation_rate=0.4, seed=3).dataset
+    lik = PreferenceLikelihood.from_dataset(ds, likelihood="pairwise")
+    out = {}
+    for method in ("authors", "paper"):
+        st = SamplerSettings(method=method, n_iterations=4000, burn_in=0, thin=1, f_s=4, init_range=(-30, -1))
+        out[method] = sample(lik, st, n_chains=1, seed=4, n_jobs=1, progress=False)
+    a = out["authors"]
+    c, w = a.indicators[0], a.penalty_weights[0]
+    assert np.all(w[c == 0] == 0.0)  # no latent weight survives while off, so a feature is switched on at 0
+    assert c.min() == 0  # the check above is not vacuous
+    mv = a.move[0]
+    # the authors' code steps a weight at iterations 0, 4, 8, ...; the paper (counting from 1) at 3, 7, 11, ...
+    assert mv[0] == 2 and np.all(mv[4::4] == 2) and np.all(mv[1:4] == 1)
+    assert out["paper"].move[0][0] == 1 and out["paper"].move[0][3] == 2
+    # paper keeps latent weights while off
+    pc, pw = out["paper"].indicators[0], out["paper"].penalty_weights[0]
+    assert np.any(pw[pc == 0] != 0.0)

@@ -33,7 +33,9 @@ Three methods share one compiled loop (:mod:`pbicrl.inference.samplers._mcmc`):
     flip to off sets the weight to zero (switching it back on starts from zero), with their initialisation:
     indicators Bernoulli(1/2) and penalties uniform on ``init_range`` (their point mass: [-30, -1];
     Fetch-Reach: [-100, -10]) for every feature, nominal ones included, kept only where the indicator starts
-    on (a feature that starts off has weight 0). The reset acts as shrinkage of
+    on (a feature that starts off has weight 0). As in their code a weight step on a feature that is off leaves
+    its weight at 0 (they propose from the effective weights), and the schedule counts iterations from 0: the
+    first iteration, and every ``f_s``-th after it, steps a weight. The reset acts as shrinkage of
     :math:`c_j w_{p,j}` toward zero; judge this sampler on the effective penalty.
 
 ``"bpl"`` - Algorithm 3: every candidate feature active, random walk on :math:`w_p` (optionally with a
