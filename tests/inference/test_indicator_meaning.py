@@ -126,3 +126,13 @@ def test_labelling_page_result_names_the_meaning(tmp_path):
     assert res["features"][0]["frequency_on"] == pytest.approx(0.8)
     res = summarise(saved(post_of("pbicrl"), "pbicrl"), ds)
     assert res["selected"] == ["a"] and res["features"][0]["p_constraint"] == pytest.approx(0.8)
+
+
+def test_bpl_non_candidates_get_no_effective_penalty_or_map_indicator():
+    ind = np.ones_like(IND)
+    wp = np.where(np.arange(3) == 1, 0.0, -np.abs(WP))
+    post = _with_method(quiet(make_post, ind, wp, settings={"candidates": [0, 2]}), "bpl")
+    s = post.summary()
+    assert s["posterior"]["mean_effective_penalty"]["b"] is None and s["posterior"]["ci90"]["b"] == [None, None]
+    assert s["map"]["indicators"]["b"] is None and s["map"]["indicators"]["a"] == 1
+    assert s["posterior"]["mean_effective_penalty"]["a"] is not None

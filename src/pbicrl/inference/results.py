@@ -759,6 +759,11 @@ class Posterior(DrawsView):
                                                             "indicator_prior": settings.get("indicator_prior")}
         meaning = self.indicator_meaning
         posterior_c = meaning == "posterior"
+        model = dict(zip(names, self.in_model()))
+
+        def out_of_model(d: dict[str, Any], empty: Any = None) -> dict[str, Any]:
+            """bpl: a feature that is not a candidate is not in the model and gets no number."""
+            return {n: (v if model[n] else empty) for n, v in d.items()}
         indicator_block: dict[str, Any]
         if posterior_c:
             indicator_block = {"p_constraint": by_name(self.p_constraint)}
@@ -775,7 +780,7 @@ class Posterior(DrawsView):
             "most_frequent_set": self.most_frequent_set() if meaning != "fixed" else None,
             "not_identifiable": self.not_identifiable(),
             "map": {
-                "indicators": by_name(self.map_indicators.astype(int)),
+                "indicators": out_of_model(by_name(self.map_indicators.astype(int))),
                 "penalty_weights": by_name(self.map_penalty_weights),
                 "effective_penalty": by_name(self.map_effective_penalty),
                 "parameters": {n: _py(v) for n, v in zip(self.parameter_names, self.map_parameters_active)},
@@ -784,9 +789,9 @@ class Posterior(DrawsView):
                 "definition": MAP_DEFINITION,
             },
             "posterior": {
-                "mean_effective_penalty": by_name(self.mean_effective_penalty),
+                "mean_effective_penalty": out_of_model(by_name(self.mean_effective_penalty)),
                 **indicator_block,
-                "ci90": {n: [_py(a), _py(b)] for n, (a, b) in zip(names, self.ci(0.9))},
+                "ci90": out_of_model({n: [_py(a), _py(b)] for n, (a, b) in zip(names, self.ci(0.9))}, [None, None]),
                 "penalty_given_active": {
                     "mean": by_name(cs["mean"]),
                     "median": by_name(cs["median"]),
