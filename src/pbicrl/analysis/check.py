@@ -42,7 +42,7 @@ __all__ = ["PredictiveCheck", "cross_validate", "kfold_split", "merge_folds", "p
 
 RELIABILITY_BINS = (0.0, 0.05, 0.2, 0.4, 0.6, 0.8, 0.95, 1.0)
 """Edges of the predicted-probability bins of the reliability table."""
-CALIBRATION_DRAWS = 100
+CALIBRATION_DRAWS = 50
 """Posterior draws used for the reliability table (it costs N K likelihoods per draw)."""
 
 

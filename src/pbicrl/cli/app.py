@@ -307,8 +307,8 @@ def _add_check(sub: Any) -> None:
     p.add_argument("run", type=Path, help="run directory written by 'pbicrl infer'")
     p.add_argument("--data", type=Path, required=True, help="held-out grouped dataset (.npz or a shipped name)")
     p.add_argument("--draws", type=_positive_int, default=400, help="posterior draws to score (default 400)")
-    p.add_argument("--calibration-draws", type=_nonneg_int, default=100,
-                   help="posterior draws for the reliability table (default 100; 0: no table; costs N x K "
+    p.add_argument("--calibration-draws", type=_nonneg_int, default=50,
+                   help="posterior draws for the reliability table (default 50; 0: no table; costs N x K "
                         "likelihoods per draw)")
     p.add_argument("--seed", type=_nonneg_int, default=0)
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
