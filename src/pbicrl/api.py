@@ -239,7 +239,7 @@ def infer(
     _check_groups(dataset)
     lik = PreferenceLikelihood.from_dataset(dataset, margins=margins, protocol=pairs, seed=pairs_seed,
                                             nominal_weights=nominal_weights, beta=beta, power=power,
-                                            likelihood=likelihood)
+                                            likelihood=likelihood, distinct_pairs=sampler == "authors")
     cset = None
     if constraints:
         cset = ConstraintSet(tuple(c if isinstance(c, Constraint) else constraint_from_dict(c) for c in constraints),
@@ -256,7 +256,7 @@ def infer(
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
                      candidates=candidates, penalty_sign=wprior.sign if sampler not in ("paper", "authors") else "any",
-                     constraints=cset)
+                     constraints=cset, preferences=lik.preferences, pairs_seed=int(pairs_seed))  # the pairs it uses
     stopping = None
     if auto:
         stopping = StoppingRule(target_ess=float(target_ess), target_rhat=float(target_rhat), max_time=float(max_time),

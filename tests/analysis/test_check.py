@@ -53,7 +53,7 @@ def test_constraints_explain_heldout_rankings_better_than_nominal():
     assert res.accuracy_mean > res.accuracy_nominal + 0.05
     d = res.to_dict()
     assert d["n_pairs"] == res.n_pairs > 0 and 0 <= d["pair_accuracy"]["mean"] <= 1
-    assert "nominal reward" in res.table()
+    assert "nominal only" in res.table() and res.log_score > res.log_score_nominal
     bad = ds.subset(folds[0])
     with pytest.raises(ValueError, match="features"):
         predictive_check(post, pbicrl.Dataset.from_trajectories(
@@ -71,3 +71,72 @@ def test_cross_validate_pools_folds():
     assert res.n_pairs == sum(f["n_pairs"] for f in res.folds)
     assert min(f["nominal_pair_accuracy"] for f in res.folds) <= res.accuracy_nominal <= max(
         f["nominal_pair_accuracy"] for f in res.folds)
+    # log scores of disjoint held-out folds add
+    assert res.log_score == pytest.approx(sum(f["log_score"]["posterior"] for f in res.folds))
+    assert sum(b["n"] for b in res.reliability) == ds.n_trajectories * ds.n_groups
+
+
+# ---------------------------------------------------------------------------------------------- log score
+def _gumbel_groups(n=90, w=-10.0, seed=0):
+    """One feature b; the latent utility w b + Gumbel noise (the Plackett-Luce model with beta 1) sorted into
+    three equal groups, best first. Every negative weight orders the data identically."""
+    import pbicrl
+
+    rng = np.random.default_rng(seed)
+    b = rng.uniform(0, 1, n)
+    u = w * b + rng.gumbel(size=n)
+    g = 3 - np.searchsorted(np.quantile(u, [1 / 3, 2 / 3]), u)
+    return pbicrl.Dataset.from_trajectories([np.array([[1.0, x]]) for x in b], group=g,
+                                            feature_names=("const", "b"), nominal_weights=[0.0, 0.0])
+
+
+def _point_posterior(w_b, names=("const", "b"), draws=40, method="pbicrl", prior_scale=20.0):
+    from tests.inference.test_results import make_post, quiet
+
+    ind = np.zeros((1, draws, 2), np.int8)
+    ind[..., 1] = 1
+    wp = np.zeros((1, draws, 2))
+    wp[..., 1] = w_b + np.random.default_rng(1).normal(0, 0.3, draws)
+    prior = {"kind": "student_t", "support": [None, 0.0], "mean": 0.0, "scale": prior_scale, "df": 3.0}
+    return quiet(make_post, ind, wp, names=names, settings={"weight_prior": prior, "nominal_weights": [0.0, 0.0],
+                                                            "candidates": [1]})
+
+
+def test_log_score_separates_posteriors_that_pair_accuracy_cannot():
+    held = _gumbel_groups(seed=5)
+    right, weak, huge = (predictive_check(_point_posterior(w), held, n_draws=40, calibration_draws=10)
+                         for w in (-10.0, -1.0, -300.0))
+    # identical orderings: pair accuracy cannot tell them apart
+    assert right.accuracy_mean == pytest.approx(weak.accuracy_mean) == pytest.approx(huge.accuracy_mean)
+    # the log score can: the generating weight wins by many nats over a too weak and a too strong one
+    assert right.log_score > weak.log_score + 5 and right.log_score > huge.log_score + 5
+    assert right.log_score > right.log_score_nominal + 5
+    assert right.log_score_prior is not None and right.log_score > right.log_score_prior
+    assert right.expected_log_likelihood <= right.log_score + 1e-9  # Jensen
+    d = right.to_dict()
+    assert d["log_score"]["posterior_minus_nominal"] == pytest.approx(right.log_score - right.log_score_nominal)
+    t = right.table()
+    assert "log score" in t and "reliability" in t and t.count("pair accuracy") == 1
+
+
+def test_log_score_matches_the_grouped_likelihood_by_hand():
+    from pbicrl.inference.likelihood import PreferenceLikelihood
+    from pbicrl.inference.preferences import Preferences
+
+    held = _gumbel_groups(n=30, seed=2)
+    post = _point_posterior(-10.0, draws=5)
+    res = predictive_check(post, held, n_draws=5, calibration_draws=0)
+    lik = PreferenceLikelihood(held.mean_features, Preferences.from_groups(held.group), np.zeros(2), 1.0,
+                               kind="grouped")
+    ll = np.array([lik(w) for w in post.effective_penalty.reshape(-1, 2)])
+    assert res.log_score == pytest.approx(np.log(np.mean(np.exp(ll))), rel=1e-10)
+    assert res.log_score_nominal == pytest.approx(lik(np.zeros(2)), rel=1e-10)
+    assert res.reliability == []
+
+
+def test_reliability_of_the_generating_model_is_calibrated():
+    held = _gumbel_groups(n=240, seed=7)
+    res = predictive_check(_point_posterior(-10.0, draws=8), held, n_draws=8, calibration_draws=8)
+    bins = [b for b in res.reliability if b["n"] >= 40]
+    assert sum(b["n"] for b in res.reliability) == 240 * 3
+    assert bins and all(abs(b["mean_predicted"] - b["observed"]) < 0.15 for b in bins)

@@ -163,9 +163,11 @@ def test_parameter_prior_driven_from_identified_range(rng, expected):
 
 
 # ---------------------------------------------------------------------------------------------- prior-driven
-def test_prior_driven_follows_the_identification():
-    # b's draws would look prior-driven to the heuristic (piled at the bound), a's would not: the
-    # identification's "unbounded" flags win over both.
+def test_prior_driven_is_measured_not_copied_from_the_identification():
+    # The LP calls a unbounded and b bounded; the draws say otherwise: a sits near -5 whatever the prior, b's
+    # draws pile at the flat prior's bound -100. The measurement (reweighting to a tenfold wider prior, bound
+    # reached) wins; the identification's flag is only the fallback where nothing can be measured.
+    import dataclasses
     rng = np.random.default_rng(1)
     ind = np.ones((2, 50, 2), np.int8)
     wp = np.stack([rng.normal(-5, 0.5, (2, 50)), rng.uniform(-100, -90, (2, 50))], axis=-1)
@@ -174,18 +176,22 @@ def test_prior_driven_follows_the_identification():
                                 "reason": "separates the groups"},
                           "b": {"min_penalty": 0.0, "unbounded": False, "direction": None, "identifiable": True,
                                 "reason": "bounded"}}}
-    assert quiet(make_post, ind, wp).prior_driven() == [False, True]  # the heuristic, for contrast
+    assert quiet(make_post, ind, wp).prior_driven() == [False, True]
     post = quiet(make_post, ind, wp, identified=ident)
-    assert post.prior_driven() == [True, False]
+    assert post.prior_driven() == [False, True]
     s = post.summary()
-    assert s["posterior"]["penalty_given_active"]["prior_driven"] == {"a": True, "b": False}
+    assert s["posterior"]["penalty_given_active"]["prior_driven"] == {"a": False, "b": True}
     assert s["identified"]["features"]["a"]["min_penalty"] == 56.0
     assert post.min_penalty() == [56.0, 0.0]
+    # the paper sampler ignores the prior: nothing to measure, so the identification's flag is used
+    paper = dataclasses.replace(post, method="paper", issue_warnings=False)
+    assert paper.prior_driven() == [True, False]
+    assert paper.summary()["posterior"]["penalty_given_active"]["prior_driven"] == {"a": True, "b": False}
 
 
-def test_prior_driven_heuristic_against_the_prior_quantile():
-    # flat prior on [-100, 100]: its 5% quantile is -90. Given c = 1, a's draws fill [-100, -10] (5% quantile
-    # about -95.5: beyond -90, prior-driven); b's sit near -5 (not); c is never on (unknown).
+def test_prior_driven_measured_without_identification():
+    # flat prior on [-100, 100]: given c = 1, a's draws fill [-100, -10] and reach the bound (prior-driven);
+    # b's sit near -5 (not); c is never on (unknown).
     ind = np.ones((2, 100, 3), np.int8)
     ind[:, :, 2] = 0
     a = np.linspace(-100, -10, 200).reshape(2, 100)
@@ -195,7 +201,7 @@ def test_prior_driven_heuristic_against_the_prior_quantile():
     assert _prior_quantile(FLAT, 0.05) == pytest.approx(-90.0)
     assert post.prior_driven() == [True, False, None]
     msgs = post.warnings()
-    sep = [m for m in msgs if "prior's own quantile" in m]
+    sep = [m for m in msgs if "tenfold wider" in m]
     assert len(sep) == 1 and sep[0].startswith("a (") and "b (" not in sep[0]
     assert "margins raise the lower bound only" in sep[0] and "use margins to set the scale" not in sep[0]
     # positive medians look at the upper end
@@ -220,9 +226,10 @@ def test_per_feature_prior_summary_is_used():
     # an attached prior summary with per-feature scales (by index, as a resolved prior writes them)
     prior = {"kind": "normal", "sign": "negative", "mean": 0.0, "scale": None, "support": [None, 0.0],
              "features": {"0": {"scale": 1.0}, "1": {"scale": 1000.0}}}
-    ind = np.ones((1, 100, 2), np.int8)
-    draws = np.linspace(-3, -2.5, 100)  # beyond the 5% quantile -1.96 of a half-normal with scale 1 only
-    post = quiet(make_post, ind, np.stack([draws, draws], axis=-1)[None], prior=prior)
+    ind = np.ones((1, 4000, 2), np.int8)
+    draws = np.linspace(-3, -2.5, 4000)  # beyond the 5% quantile -1.96 of a half-normal with scale 1 only
+    other = np.random.default_rng(0).permutation(draws)  # independent of the first (the reweighting is joint)
+    post = quiet(make_post, ind, np.stack([draws, other], axis=-1)[None], prior=prior)
     assert post.prior_driven() == [True, False]
     assert post.summary()["prior"] == json_safe(prior)
 
@@ -272,7 +279,7 @@ def test_warnings_are_issued_once_when_built():
         post = make_post(ind, wp, log_likelihood=np.zeros((2, 100)))
     issued = _pbicrl_messages(rec)
     expected = post.warnings()
-    assert expected and any("prior's own quantile" in m for m in expected)
+    assert expected and any("tenfold wider" in m for m in expected)
     assert sorted(issued) == sorted(expected) and len(set(issued)) == len(issued)
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
@@ -298,7 +305,7 @@ def test_warnings_can_be_turned_into_errors():
     wp = np.linspace(-100, -10, 200).reshape(2, 100, 1)
     with warnings.catch_warnings():
         warnings.simplefilter("error", PbicrlWarning)
-        with pytest.raises(PbicrlWarning, match="prior's own quantile"):
+        with pytest.raises(PbicrlWarning, match="tenfold wider"):
             make_post(ind, wp)
 
 
@@ -412,7 +419,8 @@ def test_table_leads_with_selection_and_fits_100_columns():
     long_row = next(r for k, r in rows.items() if k.startswith("constraint_with"))
     assert " yes " in long_row and " 56 " in long_row and "*" in long_row
     assert " no " in rows["c"] and rows["c"].split()[3] == "-"
-    assert "* prior-driven (the identification): constraint_with_a_rather_long_name" in table
+    assert "* prior-driven (measured:" in table and "constraint_with_a_rather_long_name" in table.split(
+        "* prior-driven")[1]
     assert "selected (P(c=1) > 0.5): constraint_with_a_rather_long_name, b" in table
     assert "min|w_p|: smallest penalty" in table
 
@@ -421,7 +429,8 @@ def test_table_without_identification_says_so(hand):
     table = hand.table()
     assert "min|w_p|: '-' (no identification attached)" in table
     row = next(line for line in table.splitlines() if line.startswith("a "))
-    assert row.split()[1:5] == ["0.800", "yes", "-", "-4.5"]
+    # P(c=1) under a flat box moves with its width (a tenfold wider box divides the prior odds by ten): starred
+    assert row.split()[1:5] == ["0.800*", "yes", "-", "-4.5"]
 
 
 # ---------------------------------------------------------------------------------------------- run directories

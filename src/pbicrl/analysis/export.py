@@ -46,8 +46,9 @@ trajectories it involves so that the shares of one draw sum to its total log-lik
   carries more of the term. The lower half goes to the members :math:`j \\in \\mathcal{R}_k` in proportion to
   their weight :math:`e^{a_j + m_{k\\ell(j)}} / \\Lambda_k` in :math:`\\Lambda_k`: a lower trajectory that
   nearly reaches group :math:`k` carries more. Every share has the sign of its term, each term's shares add
-  up to it, so the shares sum to :math:`\\sum_k \\log P_k`; with one trajectory per group they are exactly the
-  pairwise split of :math:`\\log\\sigma(a_i - m - a_j)`.
+  up to it, so the shares sum to :math:`\\sum_k \\log P_k`; with two groups of one trajectory each they are exactly
+  the pairwise split of :math:`\\log\\sigma(a_i - m - a_j)` (with more groups a term compares one trajectory
+  with all lower ones at once).
 """
 
 from __future__ import annotations
@@ -401,7 +402,7 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
         raise ValueError(f"export: the dataset's features {list(dataset.feature_names)} do not match the run's "
                          f"{names[:dk]}; pass the dataset the run was inferred from")
     protocol = str(settings.get("protocol", "all"))
-    hit = re.fullmatch(r"(\d+) per group pair", protocol)
+    hit = re.fullmatch(r"(\d+) per group pair( \(distinct\))?", protocol)
     if protocol != "all" and hit is None:
         raise ValueError(f"export: the run's preferences ({protocol!r}) cannot be rebuilt from the dataset; "
                          "pass likelihood=")
@@ -413,6 +414,7 @@ def run_likelihood(post: Any, dataset: "Dataset") -> tuple["PreferenceLikelihood
     lik = PreferenceLikelihood.from_dataset(
         dataset, margins=run_margins(extra, dataset.n_groups),
         protocol="all" if hit is None else int(hit.group(1)), seed=int(recorded("pairs_seed", 0)),
+        distinct_pairs=hit is not None and hit.group(2) is not None,
         nominal_weights=None if wn is None else np.asarray(wn, dtype=np.float64),
         beta=recorded("beta", 1.0), power=recorded("power", 1.0), likelihood=kind)  # type: ignore[arg-type]
     cset = constraint_set_of(post, dataset)

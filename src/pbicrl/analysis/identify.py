@@ -26,7 +26,8 @@ Separation scale (``min_penalty``)
     penalty on feature :math:`j` with which the data are explained at level :math:`\alpha`; 0 when feature
     :math:`j` is not needed, ``None`` when :math:`S_\alpha = \emptyset`. It grows with :math:`1/\beta`, the
     margins and :math:`\operatorname{logit}(1-\alpha)`. It is **not** a bound on, nor an estimate of, the
-    true penalty: on the shipped point-mass data (simulated with penalties 10 and 100) it is about 56 and 352.
+    true penalty: on the shipped point-mass data (simulated with penalties 10 and 100) it is several times
+    larger (the README gives the numbers; ``tests/test_docs_numbers.py`` keeps them current).
 Unbounded penalty
     Feature :math:`j` is unbounded in direction :math:`s = \pm 1` when some recession direction
     :math:`\delta` (admissible sign, :math:`s\,\delta_j > 0`) satisfies
@@ -49,6 +50,7 @@ Threshold interval of an axis half-space
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -60,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 from pbicrl.inference.constraints import AxisHalfspace, Constraint, ConstraintSet, constraint_from_dict
 from pbicrl.inference.data import Dataset
 from pbicrl.errors import warn
-from pbicrl.inference.preferences import Margins
+from pbicrl.inference.preferences import Margins, Preferences
 
 __all__ = ["identify", "Identification", "FeatureIdentification", "ParameterInterval", "IdentifyError",
            "threshold_interval"]
@@ -224,6 +226,10 @@ class Identification:
     n_lp : int
         Linear programs solved (including cutting-plane rounds).
     runtime_s : float
+    pairs : dict or None
+        ``None``: the analysis covers every cross-group pair (what the grouped and the all-pairs likelihoods use).
+        Otherwise the likelihood uses sampled pairs (``--pairs N``) and so does the analysis: ``protocol``,
+        ``n_pairs``, and ``parameters_from`` (parameter intervals still come from the groups).
     """
 
     feature_names: tuple[str, ...]
@@ -239,6 +245,12 @@ class Identification:
     parameters: tuple[ParameterInterval, ...] = ()
     n_lp: int = 0
     runtime_s: float = 0.0
+    pairs: dict[str, Any] | None = None
+
+    @property
+    def pair_words(self) -> str:
+        """Which pairs the analysis orders: ``"cross-group pair"`` or ``"sampled pair"`` (:attr:`pairs`)."""
+        return "cross-group pair" if self.pairs is None else "sampled pair"
 
     def __getitem__(self, name: str) -> FeatureIdentification:
         """Entry of the feature ``name``."""
@@ -284,6 +296,8 @@ class Identification:
             "warnings": self.warnings(),
             "n_lp": self.n_lp,
             "runtime_s": self.runtime_s,
+            "pairs": ({"used": "all cross-group pairs"} if self.pairs is None
+                      else {"used": "sampled pairs (the ones the likelihood uses)", **self.pairs}),
         }
 
     # ------------------------------------------------------------------------------------ messages
@@ -312,7 +326,7 @@ class Identification:
                          "posterior magnitude reflects the prior.")
             else:
                 scale = (f" What the data identify is the separation scale |w_p| >= {f.min_penalty:.4g}: the smallest "
-                         f"penalty with which every cross-group pair is ordered with probability >= {level} "
+                         f"penalty with which every {self.pair_words} is ordered with probability >= {level} "
                          f"(alpha = {self.alpha:g}, beta = {self.beta:g}) - a scale at which the rankings are "
                          "explained, not an estimate of the true penalty. Beyond it the posterior reflects the prior "
                          "(its bounds or scale), not the data.")
@@ -343,11 +357,14 @@ class Identification:
         lines = [f"identifiability: {K} groups, beta {self.beta:g}, alpha {self.alpha:g} "
                  f"(logit(1-alpha) = {self.logit_level:.4g}), margins "
                  + shown + f", {sign}"]
+        lines.append("pairs: every cross-group pair (as the likelihood uses)" if self.pairs is None else
+                     f"pairs: the {self.pairs['n_pairs']:,} sampled pairs the likelihood uses "
+                     f"({self.pairs['protocol']}, seed {self.pairs.get('seed')}), not every cross-group pair")
         if self.separable:
-            lines.append(f"separable: yes - some admissible penalty vector orders every cross-group pair with "
+            lines.append(f"separable: yes - some admissible penalty vector orders every {self.pair_words} with "
                          f"probability >= {1 - self.alpha:g}; unbounded penalties are identified only up to that scale")
         else:
-            lines.append(f"separable: no - no admissible penalty vector orders every cross-group pair with probability "
+            lines.append(f"separable: no - no admissible penalty vector orders every {self.pair_words} with probability "
                          f">= {1 - self.alpha:g}; the likelihood itself fixes the scale of bounded penalties")
         w = max(8, max(len(n) for n in self.feature_names))
         head = (f"{'feature':<{w}}  {'cand':>4}  {'ident':>5}  {'min |w_p|':>10}  {'w_p range over S_alpha':>26}  "
@@ -741,6 +758,8 @@ def identify(
     candidates: Sequence[str | int] | None = None,
     penalty_sign: PenaltySign = "negative",
     constraints: ConstraintSet | Sequence[Constraint | dict] | None = None,
+    preferences: Preferences | None = None,
+    pairs_seed: int | None = None,
 ) -> Identification:
     r"""Identifiability analysis of a ranked dataset, before sampling.
 
@@ -768,6 +787,11 @@ def identify(
         Parametric constraints; axis half-spaces get a threshold interval (:func:`threshold_interval`), other
         families an entry without interval and with a reason. Their penalties are not part of the LPs (their
         features depend on the unknown location).
+    preferences : Preferences, optional
+        The pairs the likelihood uses. With sampled pairs (``protocol`` not ``"all"``, ``--pairs N``) the
+        analysis is of those pairs, not of every cross-group pair (:attr:`Identification.pairs` says which);
+        ``None`` or all pairs: the groups. ``pairs_seed`` is only recorded.
+    pairs_seed : int, optional
 
     Returns
     -------
@@ -791,6 +815,10 @@ def identify(
     t0 = time.perf_counter()
     if not isinstance(dataset, Dataset):
         raise IdentifyError(f"dataset: expected a pbicrl.inference.data.Dataset, got {type(dataset).__name__}")
+    if preferences is not None and preferences.protocol != "all":
+        return _identify_pairs(dataset, preferences, pairs_seed, nominal_weights=nominal_weights, beta=beta,
+                               margins=margins, alpha=alpha, candidates=candidates, penalty_sign=penalty_sign,
+                               constraints=constraints, t0=t0)
     if penalty_sign not in ("negative", "any"):
         raise IdentifyError(f"penalty_sign: expected 'negative' or 'any', got {penalty_sign!r}")
     beta = _check_scalar("beta", beta, 0.0, math.inf, lo_open=True, hi_open=True)
@@ -984,6 +1012,82 @@ def identify(
         margins=mar, penalty_sign=penalty_sign, nominal_weights=np.asarray(wn, dtype=np.float64).copy(),
         group_labels=tuple(int(k) for k in labels), unbounded_directions=tuple(seen.values()),
         parameters=tuple(params), n_lp=lp.n_lp, runtime_s=time.perf_counter() - t0)
+
+
+_MARGIN_COLUMN = "__pair_margin__"
+
+
+def _identify_pairs(dataset: Dataset, preferences: Preferences, pairs_seed: int | None, *, t0: float,
+                    **kw: Any) -> Identification:
+    r""":func:`identify` of the pairs a sampled-pairs likelihood uses.
+
+    A pair :math:`(i, j)` with margin :math:`m` asks :math:`\beta\,(\bar\phi_i - \bar\phi_j)^\top w - m \ge
+    \operatorname{logit}(1-\alpha)`. That is the group analysis of a two-group dataset: group 1 holds one row
+    :math:`\bar\phi_i - \bar\phi_j` per pair (and :math:`-m/\beta` in an extra column with nominal weight 1), group 2
+    a single zero row; "every row of group 1 above group 2" is then exactly "every pair ordered", and its recession
+    directions are those of the pairs.
+    """
+    if preferences.n_trajectories != dataset.n_trajectories:
+        raise IdentifyError(f"preferences: built for {preferences.n_trajectories} trajectories, the dataset has "
+                            f"{dataset.n_trajectories}")
+    d = dataset.n_features
+    names = dataset.feature_names
+    beta = _check_scalar("beta", kw["beta"], 0.0, math.inf, lo_open=True, hi_open=True)
+    wn = kw["nominal_weights"]
+    wn = (dataset.nominal_weights if dataset.nominal_weights is not None else np.zeros(d)) if wn is None else wn
+    wn = np.asarray(wn, dtype=np.float64).reshape(-1)
+    I, J, M = preferences.to_pair_list()
+    F = dataset.mean_features
+    rows = np.vstack([np.column_stack([F[I] - F[J], -np.asarray(M, dtype=np.float64) / beta]), np.zeros((1, d + 1))])
+    pseudo = Dataset.from_trajectories([r[None, :] for r in rows], group=[1] * I.size + [2],
+                                       feature_names=tuple(names) + (_MARGIN_COLUMN,),
+                                       nominal_weights=np.append(wn, 1.0))
+    cset = _constraint_set(dataset, kw["constraints"])
+    cand = _resolve_candidates(dataset, kw["candidates"], cset)
+    sub = identify(pseudo, beta=beta, alpha=kw["alpha"], candidates=[names[j] for j in cand] or [_MARGIN_COLUMN],
+                   penalty_sign=kw["penalty_sign"], nominal_weights=np.append(wn, 1.0))
+    # The ends of w_j over S_alpha straight from the pair rows (one LP each, every row present): the group LP's
+    # cutting planes stop at a tolerance that grows with the box an unbounded companion runs to.
+    from scipy.optimize import linprog
+
+    L = math.log((1.0 - sub.alpha) / sub.alpha)
+    D = (F[I] - F[J])[:, list(cand)]
+    rhs = (F[I] - F[J]) @ wn - (L + np.asarray(M, dtype=np.float64)) / beta  # D w >= (L + m)/beta - D w_n
+    neg = kw["penalty_sign"] == "negative"
+    box = [(None, 0.0) if neg else (None, None)] * len(cand)
+    feasible = bool(cand) and linprog(np.zeros(len(cand)), A_ub=-D, b_ub=rhs, bounds=box, method="highs").status == 0
+    feats = []
+    spread = F.max(axis=0) - F.min(axis=0)
+    for j, f in enumerate(sub.features[:d]):
+        if not cand or j not in cand:
+            f = FeatureIdentification(names[j], False, None, "not a candidate: w_p fixed at 0", spread=float(spread[j]))
+        elif f.identifiable is not False and feasible:
+            a = list(cand).index(j)
+            ends = []
+            for sgn in (-1.0, 1.0):
+                obj = np.zeros(len(cand))
+                obj[a] = -sgn
+                r = linprog(obj, A_ub=-D, b_ub=rhs, bounds=box, method="highs")
+                ends.append(sgn * math.inf if r.status == 3 else float(r.x[a]))
+            lo, hi = ends
+            mp = 0.0 if lo <= 0.0 <= hi else float(min(abs(lo), abs(hi)))
+            reason = f.reason.split("; separation scale")[0] + f"; separation scale {mp:.4g}" if f.unbounded else \
+                f"bounded by the data; separation scale {mp:.4g}"
+            f = dataclasses.replace(f, min_penalty=mp, penalty_range=(lo, hi), reason=reason)
+        elif not feasible:
+            f = dataclasses.replace(f, min_penalty=None, penalty_range=None)
+        feats.append(dataclasses.replace(f, spread=float(spread[j])))
+    params: tuple[ParameterInterval, ...] = ()
+    if cset is not None:  # locations from the groups: the pairs' analysis covers the known features' penalties
+        params = identify(dataset, **{k: v for k, v in kw.items()}).parameters
+    labels = dataset.group_labels
+    return Identification(
+        feature_names=tuple(names), features=tuple(feats), separable=feasible, alpha=sub.alpha, beta=beta,
+        margins=Margins.parse(kw["margins"], labels.size), penalty_sign=kw["penalty_sign"], nominal_weights=wn.copy(),
+        group_labels=tuple(int(k) for k in labels), unbounded_directions=sub.unbounded_directions,
+        parameters=params, n_lp=sub.n_lp, runtime_s=time.perf_counter() - t0,
+        pairs={"protocol": preferences.protocol, "n_pairs": int(I.size), "seed": pairs_seed,
+               "parameters_from": "groups" if params else None})
 
 
 def _named(delta: NDArray[np.float64], free: Sequence[int], names: Sequence[str]) -> dict[str, float]:

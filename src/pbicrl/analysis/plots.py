@@ -126,7 +126,8 @@ def _settings(post: Any) -> dict[str, Any]:
 def _prior_source(post: Any) -> Mapping[str, Any] | None:
     """The weight prior as recorded: the posterior's prior summary (``Posterior.prior`` or ``summary.json``'s
     ``prior``), else the sampler settings' ``weight_prior``."""
-    for src in (getattr(post, "prior", None), (getattr(post, "summary", None) or {}).get("prior"),
+    summary = getattr(post, "summary", None)  # a RunRecord's dict; a Posterior's is a method
+    for src in (getattr(post, "prior", None), summary.get("prior") if isinstance(summary, Mapping) else None,
                 _settings(post).get("weight_prior")):
         if isinstance(src, Mapping):
             return src
@@ -356,7 +357,7 @@ def plot_traces(post: Any, *, truth: Mapping[str, float] | None = None,
         ax, hx = axes[r]
         ax.set_title(title, loc="left", fontsize=10)
         if p_on == 0:
-            _blank(ax, "never active (P(c=1)=0)")
+            _blank(ax, f"never active ({_p_label(_meaning(post), True)}=0)")
             hx.set_visible(False)
             continue
         for c in range(C):
@@ -378,7 +379,7 @@ def plot_traces(post: Any, *, truth: Mapping[str, float] | None = None,
         hx.set_xticks([])
         hx.tick_params(labelleft=False)
         if active is not None and p_on < 1:
-            hx.set_title(f"P(c=1) = {p_on:.2f}", fontsize=9)
+            hx.set_title(f"{_p_label(_meaning(post), True)} = {p_on:.2f}", fontsize=9)
     shown = [r for r in range(len(rows)) if rows[r][5] > 0]
     axes[shown[-1], 0].set_xlabel(_draw_axis_label(post))
     axes[shown[-1], 1].set_xlabel("density\n(active draws)")
@@ -450,6 +451,9 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
     w = np.asarray(post.penalty_weights, dtype=np.float64).reshape(-1, len(names))
     wb = _weight_bounds(post)
     params, pnames = _params(post)
+    meaning = _meaning(post)
+    model = _in_model(post, len(names))
+    c = c & model  # bpl: a non-candidate is not in the model (no draws to show)
     panels: list[_Panel] = []
     for j, n in enumerate(names):
         tv = _truth_value(truth, n)
@@ -473,8 +477,10 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
         axb, axd = sf.subplots(1, 2, gridspec_kw={"width_ratios": [1, 7]})
         on_word = "c=1" if pn.is_penalty else "active"
         note = "" if pn.true_on is None or pn.true_on else ";  truth: not a constraint"
+        p_word = f"P({on_word})" if meaning == "posterior" else "freq on" if meaning == "chain_frequency" else (
+            "in the model" if pn.p_on > 0 else "not in the model")
         # name and numbers on two lines: on one, a long name with the note ran past the panel
-        sf.suptitle(f"{pn.name}\nP({on_word}) = {pn.p_on:.2f}{note}", fontsize=11)
+        sf.suptitle(f"{pn.name}\n{p_word}" + (f" = {pn.p_on:.2f}" if meaning != "fixed" else "") + note, fontsize=11)
         # the probability bar: blue P(active), grey the rest (for a penalty: the atom at w_p = 0)
         axb.bar([0], [pn.p_on], width=0.8, color=_ACTIVE, alpha=0.7)
         axb.bar([0], [1 - pn.p_on], bottom=[pn.p_on], width=0.8, color=_ATOM)
@@ -483,12 +489,12 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
         axb.set_ylim(0, 1)
         axb.set_xticks([])
         axb.set_yticks([0, 0.5, 1])
-        axb.set_ylabel("P(c=1)" if pn.is_penalty else "P(active)")
+        axb.set_ylabel(_p_label(meaning, pn.is_penalty))
         if pn.true_on is not None:
             axb.plot([-0.55, 0.55], [pn.true_on, pn.true_on], color=_TRUTH, lw=3, clip_on=False, zorder=5)
             used["truth"] = True
         if pn.draws.size == 0:
-            _blank(axd, "never active (P(c=1)=0)")
+            _blank(axd, "not in the model" if meaning == "fixed" else f"never active ({_p_label(meaning, True)}=0)")
             axd.set_xlabel(pn.xlabel)
             continue
         used["active"] = True
@@ -516,7 +522,9 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
               "truth": ("truth", "truth"), "bound": ("bound", "prior bound")}
     fig.legend(handles=_legend_handles([labels[k] for k, v in used.items() if v]), loc="outside lower center",
                ncol=4, frameon=False)
-    fig.suptitle("Posterior: each penalty given its constraint is active, with P(c=1); each parameter while active")
+    fig.suptitle("Posterior: each penalty given its constraint is active, with "
+                 + {"posterior": "P(c=1)", "chain_frequency": "the frequency on in the chain (not a posterior "
+                    "probability)", "fixed": "no indicators (bpl)"}[meaning] + "; each parameter while active")
     return fig
 
 
@@ -525,7 +533,10 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
 def plot_p_constraint(post: Any, *, truth: Mapping[str, float] | None = None,
                       units: Mapping[str, str] | None = None) -> Any:
     """Bar chart of :math:`P(c_j = 1 \\mid \\mathcal{D})` per feature with its value, per-chain estimates as
-    dots, and bars coloured by the truth where it is known (non-zero true penalty = constraint).
+    dots, and bars coloured by the truth where it is known (non-zero true penalty = constraint). For the
+    ``paper`` / ``authors`` samplers the bars are the frequency on in the chain and are named so (not a
+    posterior probability, :data:`pbicrl.inference.draws.INDICATOR_MEANINGS`); a ``bpl`` run has no
+    indicators (``ValueError``).
 
     ``units`` is accepted for a common signature; this figure has no axis in units.
 
@@ -543,6 +554,9 @@ def plot_p_constraint(post: Any, *, truth: Mapping[str, float] | None = None,
     """
     Figure = _mpl()
     names = list(post.feature_names)
+    meaning = _meaning(post)
+    if meaning == "fixed":
+        raise ValueError("post: a bpl run has no indicators (every candidate is in the model): no P(c=1) to plot")
     ind = np.asarray(post.indicators).astype(float)
     p = ind.reshape(-1, len(names)).mean(axis=0)
     per_chain = ind.mean(axis=1)  # (chains, d)
@@ -564,8 +578,9 @@ def plot_p_constraint(post: Any, *, truth: Mapping[str, float] | None = None,
                   if max(len(n) for n in names) > 8 else "center")
     ax.set_ylim(0, 1.12)
     ax.set_yticks([0, 0.25, 0.5, 0.75, 1])
-    ax.set_ylabel("P(constraint | data)")
-    ax.axhline(0.5, color="k", lw=0.5, ls=":")
+    ax.set_ylabel("P(constraint | data)" if meaning == "posterior" else "frequency on in the chain")
+    if meaning == "posterior":  # the selection threshold; a chain frequency selects nothing
+        ax.axhline(0.5, color="k", lw=0.5, ls=":")
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -574,7 +589,8 @@ def plot_p_constraint(post: Any, *, truth: Mapping[str, float] | None = None,
                if k in kinds and (truth or k != "unknown")]
     handles.append(Line2D([], [], color="k", marker=".", ls="none", ms=6, label="per chain"))
     fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), frameon=False)
-    fig.suptitle("Posterior probability that each feature is a constraint")
+    fig.suptitle("Posterior probability that each feature is a constraint" if meaning == "posterior" else
+                 f"Frequency on in the chain ({post.method} sampler: not a posterior probability)")
     return fig
 
 
@@ -622,11 +638,12 @@ def plot_pairs(post: Any, *, truth: Mapping[str, float] | None = None,
     for ax, (k, j) in zip(axes, panels):
         sel = c[:, j] & np.isfinite(th[:, k])
         xs, ys = th[sel, k], w[sel, j]
-        ax.set_title(f"{names[j]}: P(c=1)={c[:, j].mean():.2f}, {int(sel.sum())} active draws")
+        ax.set_title(f"{names[j]}: {_p_label(_meaning(post), True)}={c[:, j].mean():.2f}, "
+                     f"{int(sel.sum())} active draws")
         ax.set_xlabel(U.param_label(pnames[k]))
         ax.set_ylabel(f"penalty w_p of {names[j]}\n({U.penalty(names[j])})")
         if not xs.size:
-            _blank(ax, "never active (P(c=1)=0)")
+            _blank(ax, f"never active ({_p_label(_meaning(post), True)}=0)")
             continue
         if xs.size > _MAX_SCATTER_POINTS:
             pick = rng.choice(xs.size, _MAX_SCATTER_POINTS, replace=False)
@@ -927,6 +944,23 @@ def _truth_list(values: Sequence[Any], names: Sequence[str]) -> dict[str, float]
 
 
 # --------------------------------------------------------------------------------------------- all figures
+def _meaning(post: Any) -> str:
+    from pbicrl.inference.draws import indicator_meaning
+    return indicator_meaning(getattr(post, "method", None))
+
+
+def _in_model(post: Any, d: int) -> NDArray[np.bool_]:
+    f = getattr(post, "in_model", None)
+    return np.asarray(f(), dtype=bool) if callable(f) else np.ones(d, dtype=bool)
+
+
+def _p_label(meaning: str, is_penalty: bool) -> str:
+    """What the share of draws with the constraint on is called (:data:`pbicrl.inference.draws.INDICATOR_MEANINGS`)."""
+    if meaning == "posterior":
+        return "P(c=1)" if is_penalty else "P(active)"
+    return "freq on" if meaning == "chain_frequency" else "in the model"
+
+
 def _save(fig: Any, path: Path, dpi: int) -> None:
     fig.savefig(path, dpi=dpi)
 
@@ -995,8 +1029,9 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
     if units is None and dataset is not None and isinstance(getattr(dataset, "units", None), Mapping):
         units = dataset.units
     kw = {"truth": truth, "units": units}
-    figures = {"trace": plot_traces(run, **kw), "posterior": plot_posteriors(run, **kw),
-               "p_constraint": plot_p_constraint(run, **kw)}
+    figures = {"trace": plot_traces(run, **kw), "posterior": plot_posteriors(run, **kw)}
+    if _meaning(run) != "fixed":  # bpl: no indicators
+        figures["p_constraint"] = plot_p_constraint(run, **kw)
     pairs = plot_pairs(run, **kw)
     if pairs is not None:
         figures["pairs"] = pairs

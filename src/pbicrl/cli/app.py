@@ -51,16 +51,23 @@ def _add_model_options(p: argparse.ArgumentParser) -> None:
                    help=f"identifiability level: pairs ordered with probability >= 1 - alpha (default {_D.alpha:g})")
 
 
+def _add_pair_options(p: argparse.ArgumentParser) -> None:
+    """Which comparisons the likelihood uses (shared by ``infer`` and ``identify``, which analyses the same ones)."""
+    p.add_argument("--likelihood", choices=["grouped", "pairwise"],
+                   help="grouped (default): exact grouped Plackett-Luce, calibrated; pairwise: the paper's Eq. 7")
+    p.add_argument("--pairs", type=_pairs, help="pairwise only: 'all' cross-group pairs (default) or N per group pair")
+    p.add_argument("--pairs-seed", type=_nonneg_int,
+                   help="seed of the random pairs of --pairs N (default 0; identify analyses the same pairs)")
+
+
 def _add_infer(sub: Any) -> None:
     p = sub.add_parser("infer", help="infer constraints from a grouped dataset (.npz)",
                        description="Sample the posterior over constraint indicators and penalty weights.")
     p.add_argument("data", type=Path, help="dataset .npz (see pbicrl.inference.data), or a name of a shipped dataset")
     p.add_argument("--out", type=Path, required=True, help="output directory (summary.json, chains.npz)")
     _add_model_options(p)
-    p.add_argument("--likelihood", choices=["grouped", "pairwise"],
-                   help="grouped (default): exact grouped Plackett-Luce, calibrated; pairwise: the paper's Eq. 7")
+    _add_pair_options(p)
     p.add_argument("--power", type=_power, help="pairwise only: likelihood power in (0, 1] (default 1) or 'pairs'")
-    p.add_argument("--pairs", type=_pairs, help="pairwise only: 'all' cross-group pairs (default) or N per group pair")
     p.add_argument("--sampler", choices=["pbicrl", "paper", "authors", "bpl"],
                    help="pbicrl (default), paper (Algorithm 1), authors (the authors' code), bpl")
     p.add_argument("--iterations", type=_iterations,
@@ -115,6 +122,7 @@ def _config_from_args(args: argparse.Namespace) -> Any:
     return cfg.updated(
         nominal_weights=args.nominal_weights, margins=args.margins, beta=args.beta,
         power=getattr(args, "power", None), pairs=getattr(args, "pairs", None),
+        pairs_seed=getattr(args, "pairs_seed", None),
         likelihood=getattr(args, "likelihood", None), sampler=getattr(args, "sampler", None),
         iterations=getattr(args, "iterations", None), burn_in=getattr(args, "burn_in", None),
         thin=getattr(args, "thin", None), chains=getattr(args, "chains", None), jobs=getattr(args, "jobs", None),
@@ -190,6 +198,7 @@ def _add_identify(sub: Any) -> None:
                                    "increasing; identified intervals of parametric constraints.")
     p.add_argument("data", type=Path, help="dataset .npz, or a name of a shipped dataset")
     _add_model_options(p)
+    _add_pair_options(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     p.set_defaults(func=_cmd_identify)
 
@@ -205,8 +214,19 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         from pbicrl.inference.constraints import ConstraintSet, constraint_from_dict
 
         cset = ConstraintSet(tuple(constraint_from_dict(c) for c in cfg.constraints), ds)
+    prefs = None
+    if cfg.pairs not in (None, "all"):  # identify what the fitted likelihood uses: the same sampled pairs
+        from pbicrl.inference.preferences import Preferences
+
+        if cfg.likelihood != "pairwise":
+            raise ValueError(f"--pairs: sampling {cfg.pairs} pairs per group pair applies to --likelihood pairwise "
+                             "only; the grouped likelihood uses the whole ranking")
+
+        prefs = Preferences.from_groups(ds.group, cfg.margins, protocol=int(cfg.pairs), seed=cfg.pairs_seed,
+                                        distinct=cfg.sampler == "authors")  # as infer samples them
     res = identify(ds, nominal_weights=cfg.nominal_weights, beta=cfg.beta, margins=cfg.margins, alpha=cfg.alpha,
-                   candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset)  # type: ignore[arg-type]
+                   candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset,  # type: ignore[arg-type]
+                   preferences=prefs, pairs_seed=cfg.pairs_seed if prefs is not None else None)
     if args.json:
         print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
     else:
@@ -312,11 +332,17 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
 def _add_check(sub: Any) -> None:
     p = sub.add_parser("check", help="posterior predictive check on held-out demonstrations",
-                       description="How often the posterior's reward orders held-out demonstrations of different "
-                                   "groups correctly, against the nominal reward alone.")
+                       description="Log score of the held-out grouping: the log posterior predictive probability "
+                                   "of how the held-out demonstrations are grouped (grouped likelihood, the run's "
+                                   "beta and margins, averaged over draws) against the nominal-only model and the "
+                                   "prior; a reliability table of the predicted group probabilities; and, as one "
+                                   "line, the pair accuracy.")
     p.add_argument("run", type=Path, help="run directory written by 'pbicrl infer'")
     p.add_argument("--data", type=Path, required=True, help="held-out grouped dataset (.npz or a shipped name)")
     p.add_argument("--draws", type=_positive_int, default=400, help="posterior draws to score (default 400)")
+    p.add_argument("--calibration-draws", type=_nonneg_int, default=50,
+                   help="posterior draws for the reliability table (default 50; 0: no table; costs N x K "
+                        "likelihoods per draw)")
     p.add_argument("--seed", type=_nonneg_int, default=0)
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     p.set_defaults(func=_cmd_check)
@@ -328,7 +354,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from pbicrl.runs import load_run
 
     run = load_run(args.run)
-    res = predictive_check(run, load_dataset(resolve_dataset_path(args.data)), n_draws=args.draws, seed=args.seed)
+    res = predictive_check(run, load_dataset(resolve_dataset_path(args.data)), n_draws=args.draws, seed=args.seed,
+                           calibration_draws=args.calibration_draws)
     print(json.dumps(res.to_dict(), indent=2) if args.json else res.table())
     return 0
 

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["DrawsView", "SELECTION_THRESHOLD", "ESTIMATORS", "LEVEL"]
+__all__ = ["DrawsView", "SELECTION_THRESHOLD", "ESTIMATORS", "LEVEL", "INDICATOR_MEANINGS", "indicator_meaning",
+           "INDICATOR_LABELS"]
 
 SELECTION_THRESHOLD = 0.5
 """:math:`P(c_j = 1) >` this selects feature :math:`j` (median-probability model, Barbieri & Berger 2004)."""
@@ -22,6 +23,24 @@ ESTIMATORS = ("selected", "map", "mean")
 """Point estimates :meth:`DrawsView.point_estimate` offers (``selected`` is the default everywhere)."""
 LEVEL = 0.9
 """Mass of the equal-tailed intervals reported by default (90%)."""
+
+INDICATOR_MEANINGS = {"pbicrl": "posterior", "paper": "chain_frequency", "authors": "chain_frequency",
+                      "bpl": "fixed"}
+"""What the share of kept draws with :math:`c_j = 1` is, per sampler.
+
+``posterior``: :math:`P(c_j = 1 \\mid \\mathcal{D})` of a valid reversible-jump chain (``pbicrl``); the selected
+set is the median-probability model. ``chain_frequency``: Algorithm 1's indicator moves keep a latent weight
+(``paper``) or reset it (``authors``) and accept by the likelihood ratio alone, so they do not target a
+posterior over :math:`c`: the share is how often the chain had the feature on, nothing more, and no set is
+selected from it (the paper reports the highest-density visited draw, ``map``). ``fixed``: ``bpl`` has no
+indicators; the candidates are in the model, the other features are not."""
+INDICATOR_LABELS = {"posterior": "P(c=1)", "chain_frequency": "frequency on in the chain", "fixed": "in the model"}
+"""How :data:`INDICATOR_MEANINGS` are named in tables, ``summary.json``, figures and the labelling page."""
+
+
+def indicator_meaning(method: str | None) -> str:
+    """:data:`INDICATOR_MEANINGS` of a sampler (``posterior`` for runs that recorded none)."""
+    return INDICATOR_MEANINGS.get(str(method or "pbicrl"), "chain_frequency")
 
 
 class DrawsView:
@@ -65,14 +84,48 @@ class DrawsView:
         """:math:`P(c_j = 1 \\mid \\mathcal{D})`, (d,)."""
         return self.indicators.reshape(-1, self.n_features).mean(axis=0)
 
+    # ------------------------------------------------------------------ what the indicators mean
+    @property
+    def indicator_meaning(self) -> str:
+        """``posterior``, ``chain_frequency`` or ``fixed`` (:data:`INDICATOR_MEANINGS` of :attr:`method`)."""
+        return indicator_meaning(getattr(self, "method", None))
+
+    @property
+    def indicators_are_posterior(self) -> bool:
+        """Whether :attr:`p_constraint` is a posterior probability and :meth:`selected` a selection
+        (the ``pbicrl`` sampler only; see :data:`INDICATOR_MEANINGS`)."""
+        return self.indicator_meaning == "posterior"
+
+    def in_model(self) -> NDArray[np.bool_]:
+        """Per feature: is its penalty part of the sampled model? (d,) bool.
+
+        All features except for ``bpl``, whose non-candidates are fixed at :math:`w_{p,j} = 0` (their
+        indicator is stored as 1 but means nothing): there, the candidates (``settings["candidates"]``; by
+        default every known feature, or only the parametric constraints when there are any).
+        """
+        d = self.n_features
+        if self.indicator_meaning != "fixed":
+            return np.ones(d, dtype=bool)
+        settings = getattr(self, "settings", None) or {}
+        cand = settings.get("candidates")
+        out = np.zeros(d, dtype=bool)
+        if cand is None:
+            n_cons = len(settings.get("constraints") or [])
+            out[d - n_cons if n_cons else 0:] = True
+        else:
+            out[[int(j) for j in cand if 0 <= int(j) < d]] = True
+        return out
+
     # ------------------------------------------------------------------ selection
     def selected(self) -> list[str]:
         """Names of the features with :math:`P(c_j = 1 \\mid \\mathcal{D}) > 0.5`, in feature order.
 
         The median-probability set (Barbieri & Berger 2004). Unlike the highest-density draw it does not
-        compare densities of different dimensions.
+        compare densities of different dimensions. Only a selection where :attr:`indicators_are_posterior`:
+        for ``paper`` / ``authors`` the same rule on the chain's frequencies (tables and ``summary.json``
+        show no selection for them), for ``bpl`` the candidates.
         """
-        on = self.p_constraint > SELECTION_THRESHOLD
+        on = (self.p_constraint > SELECTION_THRESHOLD) & self.in_model()
         return [n for n, s in zip(self.feature_names, on) if s]
 
     def most_frequent_set(self) -> dict[str, Any]:
@@ -105,11 +158,11 @@ class DrawsView:
         -------
         dict
             ``mean``, ``median``, ``low``, ``high`` (d,) float, NaN where :math:`c_j` is never 1;
-            ``active_draws`` (d,) int.
+            ``active_draws`` (d,) int (0 for a ``bpl`` non-candidate: it is not in the model).
         """
         d = self.n_features
         w = np.asarray(self.penalty_weights, dtype=np.float64).reshape(-1, d)
-        c = np.asarray(self.indicators).reshape(-1, d).astype(bool)
+        c = np.asarray(self.indicators).reshape(-1, d).astype(bool) & self.in_model()  # bpl: candidates only
         q = (1.0 - level) / 2.0
         out = {k: np.full(d, np.nan) for k in ("mean", "median", "low", "high")}
         n = np.zeros(d, dtype=np.int64)

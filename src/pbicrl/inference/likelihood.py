@@ -22,8 +22,9 @@ that every trajectory of :math:`\\mathcal{G}_k` ranks above every trajectory of 
 
 Margins, in the same scaled units as Eq. 7, weight the lower side: in term :math:`k` every trajectory of group
 :math:`\\ell` counts as if its return were :math:`a_j + m_{k\\ell}`, so a positive margin asks group :math:`k` to
-beat group :math:`\\ell` by about :math:`m_{k\\ell}` nats; with one trajectory per group the term is exactly
-Eq. 7's :math:`\\log\\sigma(a_i - m_{k\\ell} - a_j)`. It is the probability of the observed ranking itself, so each
+beat group :math:`\\ell` by about :math:`m_{k\\ell}` nats; with two groups of one trajectory each the
+term is exactly Eq. 7's :math:`\\log\\sigma(a_i - m_{12} - a_j)` (with more groups, a single trajectory of group
+:math:`k` is compared with all lower ones at once, :math:`\\log\\sigma(a_i - \\log\\Lambda_k)`, not pair by pair). It is the probability of the observed ranking itself, so each
 trajectory's evidence counts once, where the pairwise sum counts it in each of its :math:`(K-1)n` pairs as if
 independent; no tempering is needed (``power`` does not apply). Cost: O(N) per evaluation (a one-dimensional
 integral per group, :func:`pbicrl.inference.likelihood_kernels.grouped_loglik`) instead of O(pairs); groups of thousands of
@@ -140,11 +141,13 @@ class PreferenceLikelihood:
         preferences: Preferences | None = None,
         power: float | str = 1.0,
         likelihood: Literal["pairwise", "grouped"] = "pairwise",
+        distinct_pairs: bool = False,
     ) -> "PreferenceLikelihood":
         """Likelihood of a grouped dataset; nominal weights default to the dataset's (else zeros).
 
         ``likelihood="grouped"`` uses the whole ranking: ``protocol`` (sampled pairs) and ``power`` apply to
-        ``"pairwise"`` only and are errors otherwise.
+        ``"pairwise"`` only and are errors otherwise. ``distinct_pairs``: sampled pairs without replacement
+        (:meth:`Preferences.from_groups`, the authors' code).
         """
         if likelihood not in LIKELIHOODS:
             raise ValueError(f"likelihood: unknown kind {likelihood!r}; choose one of {', '.join(LIKELIHOODS)}")
@@ -156,7 +159,8 @@ class PreferenceLikelihood:
                 raise ValueError(f"power: a likelihood power ({power!r}) applies to likelihood='pairwise' only; "
                                  "the grouped likelihood counts each trajectory once and needs no tempering")
         if preferences is None:
-            preferences = Preferences.from_groups(dataset.group, margins, protocol=protocol, seed=seed)
+            preferences = Preferences.from_groups(dataset.group, margins, protocol=protocol, seed=seed,
+                                                  distinct=distinct_pairs)
         if nominal_weights is None:
             nominal_weights = dataset.nominal_weights if dataset.nominal_weights is not None else np.zeros(dataset.n_features)
         if power == "pairs":

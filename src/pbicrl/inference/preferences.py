@@ -273,6 +273,7 @@ class Preferences:
         *,
         protocol: Literal["all"] | int = "all",
         seed: int | np.random.Generator | None = 0,
+        distinct: bool = False,
     ) -> "Preferences":
         """Preferences implied by a ranking of groups.
 
@@ -287,6 +288,10 @@ class Preferences:
             at random (with replacement) for every group pair ``k < l`` (the authors' experiments).
         seed : int or Generator
             For the sampled protocol.
+        distinct : bool
+            Sampled protocol: draw the ``n`` pairs of a group pair without replacement from its
+            :math:`|\\mathcal{G}_k||\\mathcal{G}_\\ell|` pairs, as the authors' code does (it shuffles every pair
+            and keeps the first ``n``); default: each side drawn with replacement.
         """
         g = np.asarray(group)
         if g.ndim != 1 or g.size < 2:
@@ -326,12 +331,21 @@ class Preferences:
         pi, pj, pm = [], [], []
         for k in range(K):
             for l in range(k + 1, K):
-                pi.append(rng.choice(members[k], size=int(protocol)))
-                pj.append(rng.choice(members[l], size=int(protocol)))
+                if distinct:
+                    nk, nl = members[k].size, members[l].size
+                    if int(protocol) > nk * nl:
+                        raise PreferenceError(f"protocol: {int(protocol)} distinct pairs asked of groups {k + 1} and "
+                                              f"{l + 1}, which have only {nk * nl}")
+                    flat = rng.choice(nk * nl, size=int(protocol), replace=False)
+                    pi.append(members[k][flat // nl])
+                    pj.append(members[l][flat % nl])
+                else:
+                    pi.append(rng.choice(members[k], size=int(protocol)))
+                    pj.append(rng.choice(members[l], size=int(protocol)))
                 pm.append(np.full(int(protocol), m.matrix[k, l]))
         return cls(g.size, empty, np.zeros(1, dtype=np.int64), empty, np.zeros(1, dtype=np.int64), np.zeros(0),
-                   np.concatenate(pi), np.concatenate(pj), np.concatenate(pm), protocol=f"{int(protocol)} per group pair",
-                   **groups)
+                   np.concatenate(pi), np.concatenate(pj), np.concatenate(pm),
+                   protocol=f"{int(protocol)} per group pair" + (" (distinct)" if distinct else ""), **groups)
 
     @classmethod
     def from_pairs(cls, pairs: ArrayLike, n_trajectories: int, margins: ArrayLike | float = 0.0) -> "Preferences":

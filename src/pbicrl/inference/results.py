@@ -8,8 +8,12 @@ visits states of different dimension, so the summaries that mean something are
   (Barbieri & Berger 2004, optimal for prediction under squared loss);
 * the **most frequent set** of active features over all kept draws, with its frequency;
 * **conditional summaries** of :math:`w_{p,j}` given :math:`c_j = 1` (median, mean, 90% interval), each flagged
-  ``prior_driven`` when its large-:math:`|w|` end comes from the prior because the rankings leave the
-  penalty unbounded (groups separated by the feature).
+  ``prior_driven`` when it moves with the prior: measured by reweighting the draws to the fitted prior made
+  tenfold wider (:mod:`pbicrl.inference.sensitivity`), for every reported number.
+
+These hold for the ``pbicrl`` sampler. The ``paper`` / ``authors`` samplers do not target a posterior over
+:math:`c`, so their share of draws with :math:`c_j = 1` is reported as the frequency on in the chain, with no
+selection; ``bpl`` has no indicators (:data:`~pbicrl.inference.draws.INDICATOR_MEANINGS`).
 
 The "MAP" kept in ``summary.json`` is *the highest-density visited draw*: in a reversible-jump chain it
 compares densities of different dimensions (each active feature adds a prior density factor), so it is not
@@ -19,13 +23,20 @@ the mode of a common space and not a recommended point estimate.
 
     schema_version       2
     method, feature_names
-    selected             [names with P(c=1) > 0.5]
-    most_frequent_set    {"features": [...], "frequency": float}
+    indicators           {"meaning": "posterior" | "chain_frequency" | "fixed", "label": ...}
+                         (:data:`~pbicrl.inference.draws.INDICATOR_MEANINGS`)
+    selected             [names with P(c=1) > 0.5] (pbicrl sampler; null for paper, authors, bpl)
+    most_frequent_set    {"features": [...], "frequency": float} (null for bpl)
     not_identifiable     {name: reason}   features the rankings say nothing about (no R-hat / ESS)
     map                  highest-density visited draw: indicators, penalty_weights, effective_penalty,
                          parameters, log_posterior, log_likelihood, definition
-    posterior            mean_effective_penalty, p_constraint, ci90 (of c_j w_pj),
+    posterior            mean_effective_penalty, ci90 (of c_j w_pj), and p_constraint (pbicrl) or
+                         frequency_on (paper, authors) or in_model (bpl),
                          penalty_given_active {mean, median, ci90, prior_driven, active_draws} (each by name),
+                         prior_driven {basis, p_constraint | frequency_on, mean_effective_penalty, ci90,
+                         penalty_given_active {mean, median, ci90}}: a flag for every number above (null: not
+                         measured), prior_sensitivity (the measurement, :mod:`pbicrl.inference.sensitivity`),
+                         authors_statistic (paper, authors: :meth:`Posterior.authors_statistic`),
                          rhat, diagnostics, parameters {name: {mean, median, ci90, active_draws,
                          prior_driven, identified_range}}
     identified           the attached identification (``Identification.to_dict()``) or null
@@ -67,7 +78,8 @@ from pbicrl._atomic import OutputBusyError, OutputExistsError, atomic_dir, clean
 from pbicrl.analysis.diagnostics import split_rhat
 from pbicrl.inference.codes import (C_EVALS, C_FLIP_ACC, C_FLIP_PROP, C_T_ACC, C_T_PROP, C_W_ACC, C_W_PROP,
                                     N_COUNTS)
-from pbicrl.inference.draws import ESTIMATORS, LEVEL, SELECTION_THRESHOLD, DrawsView
+from pbicrl.inference.draws import ESTIMATORS, INDICATOR_LABELS, LEVEL, SELECTION_THRESHOLD, DrawsView
+from pbicrl.inference.sensitivity import PriorSensitivity, prior_sensitivity, weight_prior_spec
 from pbicrl.runs import SCHEMA_VERSION, load_run
 
 if TYPE_CHECKING:
@@ -82,6 +94,9 @@ MAP_DEFINITION = ("the highest-density visited draw (log prior + log likelihood)
                   "reversible-jump chain this compares densities of different dimensions, so it is not the mode "
                   "of a common space: prefer 'selected' with the conditional medians")
 """What ``summary.json``'s ``map`` block is, written into the block itself."""
+
+AUTHORS_LAST_ITERATIONS = 500
+"""Iterations at the end of each chain that the paper authors' code averages (:meth:`Posterior.authors_statistic`)."""
 
 _NON_VARYING_REASON = "constant across trajectories: the likelihood does not depend on its penalty"
 _REPR_NAMES = 6  # names shown in a repr before "..."
@@ -343,8 +358,11 @@ class Posterior(DrawsView):
     # ------------------------------------------------------------------ display
     def __repr__(self) -> str:
         parts = [f"method={self.method!r}", f"chains={self.n_chains}", f"draws={self.n_draws}",
-                 f"features={self.n_features} {_short_names(self.feature_names)}",
-                 f"selected={_short_names(self.selected())}"]
+                 f"features={self.n_features} {_short_names(self.feature_names)}"]
+        if self.indicators_are_posterior:
+            parts.append(f"selected={_short_names(self.selected())}")
+        elif self.indicator_meaning == "fixed":
+            parts.append(f"in_model={_short_names([n for n, m in zip(self.feature_names, self.in_model()) if m])}")
         if self.parameter_names:
             parts.append(f"parameters={len(self.parameter_names)} {_short_names(self.parameter_names)}")
         parts.append(f"seed={self.seed}")
@@ -360,16 +378,25 @@ class Posterior(DrawsView):
         skip = self.not_identifiable()
         diag = self.diagnostics()
         p = self.p_constraint
+        meaning = self.indicator_meaning
+        model = self.in_model()
 
         def f(x: Any) -> float:
             return float(x) if _is_real(x) else float("nan")
 
+        def indicator_cells(j: int) -> dict[str, Any]:
+            """The columns that say what c_j means for this sampler (:data:`INDICATOR_MEANINGS`)."""
+            if meaning == "posterior":
+                return {"p_constraint": float(p[j]), "selected": bool(p[j] > SELECTION_THRESHOLD)}
+            if meaning == "chain_frequency":
+                return {"frequency_on": float(p[j]), "map_indicator": bool(self.map_indicators[j])}
+            return {"in_model": bool(model[j])}
+
         rows: list[dict[str, Any]] = []
         for j, n in enumerate(self.feature_names):
             v = diag.worst_of(("penalty", "indicator"), n)
-            rows.append({"name": n, "kind": "feature", "p_constraint": float(p[j]),
-                         "selected": bool(p[j] > SELECTION_THRESHOLD),
-                         "min_penalty": float("nan") if n in skip else f(mins[j]),
+            rows.append({"name": n, "kind": "feature", **indicator_cells(j),
+                         "min_penalty": float("nan") if n in skip or not model[j] else f(mins[j]),
                          "median": f(cs["median"][j]), "mean": f(cs["mean"][j]),
                          "ci90_low": f(cs["low"][j]), "ci90_high": f(cs["high"][j]),
                          "prior_driven": pdriven[j], "active_draws": int(cs["active_draws"][j]),
@@ -380,8 +407,9 @@ class Posterior(DrawsView):
             dv = diag.worst_of(("parameter",), n)
             j = owner[k] if len(owner) == len(self.parameter_names) else None
             lo, hi = v["ci90"]
-            rows.append({"name": n, "kind": "parameter", "p_constraint": float("nan") if j is None else float(p[j]),
-                         "selected": None if j is None else bool(p[j] > SELECTION_THRESHOLD),
+            own = {k: (float("nan") if isinstance(x, float) else None) for k, x in indicator_cells(0).items()} \
+                if j is None else indicator_cells(j)
+            rows.append({"name": n, "kind": "parameter", **own,
                          "min_penalty": float("nan"), "median": f(v["median"]), "mean": f(v["mean"]),
                          "ci90_low": f(lo), "ci90_high": f(hi), "prior_driven": v["prior_driven"],
                          "active_draws": int(v["active_draws"]), "rhat": f(dv["rhat"]),
@@ -392,8 +420,11 @@ class Posterior(DrawsView):
     def to_dataframe(self) -> Any:
         r"""The content of :meth:`table` as a :class:`pandas.DataFrame`, one row per feature and parameter.
 
-        Index ``name``; columns ``kind`` (``feature`` / ``parameter``), ``p_constraint``
-        (:math:`P(c_j = 1 \mid \mathcal{D})`, of the owning constraint for a parameter), ``selected``,
+        Index ``name``; columns ``kind`` (``feature`` / ``parameter``), then what the indicators mean for the
+        sampler (:data:`~pbicrl.inference.draws.INDICATOR_MEANINGS`): ``p_constraint``
+        (:math:`P(c_j = 1 \mid \mathcal{D})`, of the owning constraint for a parameter) and ``selected`` for
+        ``pbicrl``; ``frequency_on`` (share of kept draws with :math:`c_j = 1`) and ``map_indicator`` for
+        ``paper`` / ``authors``; ``in_model`` for ``bpl``;
         ``min_penalty`` (identification), ``median``, ``mean``, ``ci90_low``, ``ci90_high`` (of :math:`w_{p,j}`
         given :math:`c_j = 1`; of :math:`\vartheta_k` while its constraint is on), ``prior_driven``,
         ``active_draws``, ``rhat``, ``ess_bulk``, ``ess_tail`` (the worse of penalty and indicator), ``identifiable``
@@ -414,17 +445,17 @@ class Posterior(DrawsView):
     def _repr_html_(self) -> str:
         """An HTML table of :meth:`table`'s content (for notebooks); every text is escaped."""
         e = html.escape
-        head = ["feature", "P(c=1)", "sel", "min|w_p|", "med | c=1", "90% interval | c=1", "R-hat", "ESS bulk",
-                "ESS tail"]
+        c1, c2 = _INDICATOR_COLUMNS[self.indicator_meaning]
+        head = ["feature", c1, c2, "min|w_p|", "med | c=1", "90% interval | c=1", "R-hat", "ESS bulk", "ESS tail"]
         out = [f"<div><p><b>{e(repr(self))}</b></p>", "<table>",
                "<thead><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr></thead>", "<tbody>"]
         for r in self._records():
             star = "*" if r["prior_driven"] else ""
             iv = ("-" if not (math.isfinite(r["ci90_low"]) and math.isfinite(r["ci90_high"]))
                   else f"[{_num(r['ci90_low'], 9)}, {_num(r['ci90_high'], 9)}]{star}")
-            sel = "-" if r["selected"] is None else ("yes" if r["selected"] else "no")
+            a, b = _indicator_cells(r, self.indicator_meaning)
             cells = [r["name"] if r["kind"] == "feature" else f"parameter {r['name']}",
-                     _num(r["p_constraint"], 6) if r["kind"] == "feature" else "", sel,
+                     a if r["kind"] == "feature" else "", b,
                      "n/a" if not r["identifiable"] else _num(r["min_penalty"], 8), _num(r["median"], 9), iv,
                      _num(r["rhat"], 6), _num(r["ess_bulk"], 8), _num(r["ess_tail"], 8)]
             out.append("<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in cells) + "</tr>")
@@ -493,12 +524,54 @@ class Posterior(DrawsView):
             out.append(v if _is_real(v) and math.isfinite(v) else None)
         return out
 
+    def prior_sensitivity(self, level: float = LEVEL) -> PriorSensitivity:
+        """Which summaries move with the weight prior, measured by reweighting the draws to a tenfold wider prior
+        (:mod:`pbicrl.inference.sensitivity`). Nothing is measured for the ``paper`` / ``authors`` samplers
+        (they ignore the prior) or a prior that cannot be reweighted."""
+        key = ("_sensitivity", float(level))
+        cached = getattr(self, "_cache", {}).get(key)
+        if cached is not None:
+            return cached
+        latent = self.method in ("paper", "authors")
+        out = prior_sensitivity(self.indicators, self.penalty_weights,
+                                lambda j: None if latent else self._weight_prior_spec(j), self.in_model(), level=level)
+        cache = dict(getattr(self, "_cache", {}))
+        cache[key] = out
+        object.__setattr__(self, "_cache", cache)
+        return out
+
+    def end_flags(self, level: float = LEVEL) -> list[tuple[bool | None, bool | None, bool | None]]:
+        r"""Per feature, (low end, median, high end) of :math:`w_{p,j} \mid c_j = 1`: prior-driven?
+
+        Measured (:meth:`prior_sensitivity`) where possible; otherwise from :meth:`prior_driven`'s fallback,
+        which marks the large-:math:`|w|` end (and the median) of a flagged feature.
+        """
+        sens = self.prior_sensitivity(level)
+        cs = self.conditional_summary(level)
+        pd = self.prior_driven(level)
+        out: list[tuple[bool | None, bool | None, bool | None]] = []
+        for j in range(self.n_features):
+            f = sens.flags
+            if f["given_active_high"][j] is not None:
+                med = bool(f["given_active_median"][j] or f["given_active_mean"][j])
+                out.append((bool(f["given_active_low"][j]), med, bool(f["given_active_high"][j])))
+                continue
+            if not pd[j]:
+                out.append((pd[j], pd[j], pd[j]))
+                continue
+            m = cs["median"][j]
+            out.append((bool(m <= 0), True, bool(m >= 0)))
+        return out
+
     def prior_driven(self, level: float = LEVEL) -> list[bool | None]:
-        r"""Per feature: does the large-:math:`|w|` end of the interval of :math:`w_{p,j} \mid c_j = 1` come
+        r"""Per feature: does the interval of :math:`w_{p,j} \mid c_j = 1` (an end, its median or mean) come
         from the prior?
 
-        With an identification: its ``unbounded`` flag (the data leave :math:`|w_{p,j}|` unbounded, so the
-        far end is the prior's). Without one, a heuristic: the conditional draws' large-:math:`|w|` quantile
+        Measured where the sampler used a prior that can be reweighted (:meth:`prior_sensitivity`): one of those
+        numbers moves when the prior is made tenfold wider, or, under a bounded prior, the interval reaches the
+        bound. Otherwise (``paper`` / ``authors``, which ignore the prior, or never active), with an
+        identification: its ``unbounded`` flag (the data leave :math:`|w_{p,j}|` unbounded). Without one, a
+        heuristic: the conditional draws' large-:math:`|w|` quantile
         (the ``(1 - level)/2`` one on the side of the conditional median's sign, both sides at 0) lies beyond
         the prior's own quantile at the same level. A penalty the data pin down has a far narrower interval
         than the prior, so its tail stays inside the prior's; a one-sided (separated) likelihood leaves the
@@ -507,9 +580,15 @@ class Posterior(DrawsView):
         ``None``: no active draws, or the prior has no known quantiles (e.g. ``improper``).
         """
         s = self.conditional_summary(level)
+        sens = self.prior_sensitivity(level)
         q = (1.0 - level) / 2.0
         out: list[bool | None] = []
         for j, name in enumerate(self.feature_names):
+            measured = [sens.flags[k][j] for k in ("given_active_low", "given_active_high", "given_active_median",
+                                                   "given_active_mean")]
+            if measured[0] is not None:
+                out.append(any(bool(x) for x in measured))
+                continue
             e = self._ident_entry(name)
             if e is not None and "unbounded" in e:
                 out.append(None if e["unbounded"] is None else bool(e["unbounded"]))
@@ -608,6 +687,7 @@ class Posterior(DrawsView):
         """
         out = self._likelihood_warnings()
         out.extend(self._identification_warnings() if self.identified is not None else self._heuristic_warnings())
+        out.extend(self._required_but_off_warnings())
         conv = self.convergence
         if conv is not None:  # a run until converged: its stopping rule's verdict is the one convergence message
             if conv.get("converged") is False:
@@ -700,15 +780,30 @@ class Posterior(DrawsView):
         settings = self.settings
         prior = self.prior if self.prior is not None else {"weight_prior": settings.get("weight_prior"),
                                                             "indicator_prior": settings.get("indicator_prior")}
+        meaning = self.indicator_meaning
+        posterior_c = meaning == "posterior"
+        model = dict(zip(names, self.in_model()))
+
+        def out_of_model(d: dict[str, Any], empty: Any = None) -> dict[str, Any]:
+            """bpl: a feature that is not a candidate is not in the model and gets no number."""
+            return {n: (v if model[n] else empty) for n, v in d.items()}
+        indicator_block: dict[str, Any]
+        if posterior_c:
+            indicator_block = {"p_constraint": by_name(self.p_constraint)}
+        elif meaning == "chain_frequency":
+            indicator_block = {"frequency_on": by_name(self.p_constraint)}
+        else:
+            indicator_block = {"in_model": dict(zip(names, (bool(m) for m in self.in_model())))}
         out = {
             "schema_version": SCHEMA_VERSION,
             "method": self.method,
             "feature_names": names,
-            "selected": self.selected(),
-            "most_frequent_set": self.most_frequent_set(),
+            "indicators": {"meaning": meaning, "label": INDICATOR_LABELS[meaning]},
+            "selected": self.selected() if posterior_c else None,
+            "most_frequent_set": self.most_frequent_set() if meaning != "fixed" else None,
             "not_identifiable": self.not_identifiable(),
             "map": {
-                "indicators": by_name(self.map_indicators.astype(int)),
+                "indicators": out_of_model(by_name(self.map_indicators.astype(int))),
                 "penalty_weights": by_name(self.map_penalty_weights),
                 "effective_penalty": by_name(self.map_effective_penalty),
                 "parameters": {n: _py(v) for n, v in zip(self.parameter_names, self.map_parameters_active)},
@@ -717,9 +812,9 @@ class Posterior(DrawsView):
                 "definition": MAP_DEFINITION,
             },
             "posterior": {
-                "mean_effective_penalty": by_name(self.mean_effective_penalty),
-                "p_constraint": by_name(self.p_constraint),
-                "ci90": {n: [_py(a), _py(b)] for n, (a, b) in zip(names, self.ci(0.9))},
+                "mean_effective_penalty": out_of_model(by_name(self.mean_effective_penalty)),
+                **indicator_block,
+                "ci90": out_of_model({n: [_py(a), _py(b)] for n, (a, b) in zip(names, self.ci(0.9))}, [None, None]),
                 "penalty_given_active": {
                     "mean": by_name(cs["mean"]),
                     "median": by_name(cs["median"]),
@@ -727,6 +822,9 @@ class Posterior(DrawsView):
                     "prior_driven": dict(zip(names, self.prior_driven())),
                     "active_draws": by_name(cs["active_draws"]),
                 },
+                "prior_driven": self._prior_driven_block(),
+                **({"authors_statistic": self.authors_statistic()} if self.method in ("authors", "paper") else {}),
+                "prior_sensitivity": self.prior_sensitivity().to_dict(names),
                 "rhat": {k: by_name(np.array(v)) for k, v in self.rhat().items()},
                 "diagnostics": self.diagnostics().to_dict(),
                 "parameters": self.parameter_summary(),
@@ -761,18 +859,29 @@ class Posterior(DrawsView):
         nw = min(24, max(8, max(len(n) for n in names)))
         cs = self.conditional_summary()
         pd = self.prior_driven()
+        ends = self.end_flags()
+        sens = self.prior_sensitivity()
         mins = self.min_penalty()
         skip = self.not_identifiable()
         diag = self.diagnostics()
-        head = (f"{'feature':<{nw}}  {'P(c=1)':>6}  {'sel':>3}  {'min|w_p|':>8}  {'med|c=1':>9}  "
+        meaning = self.indicator_meaning
+        c1, c2 = _INDICATOR_COLUMNS[meaning]
+        w1, w2 = max(6, len(c1)), max(3, len(c2))
+        model = self.in_model()
+        head = (f"{'feature':<{nw}}  {c1:>{w1}}  {c2:>{w2}}  {'min|w_p|':>8}  {'med|c=1':>9}  "
                 f"{'90% interval | c=1':^24}  {'R-hat':>6}  {'ESS':>6}")
         lines = [head, "-" * len(head)]
+        records = [r for r in self._records() if r["kind"] == "feature"]
         for j, n in enumerate(names):
-            sel = "yes" if self.p_constraint[j] > SELECTION_THRESHOLD else "no"
-            mp = "n/a" if n in skip else _num(mins[j], 8)
-            iv = _interval(cs["low"][j], cs["high"][j], cs["median"][j] if pd[j] else None)
-            lines.append(f"{_cut(n, nw):<{nw}}  {self.p_constraint[j]:6.3f}  {sel:>3}  {mp:>8}  "
-                         f"{_num(cs['median'][j], 9):>9}  {iv}  {diag.cells('feature', n, compact=True)}")
+            a, b = _indicator_cells(records[j], meaning)
+            if meaning != "fixed" and sens.flags["p_constraint"][j]:
+                a += "*"
+            mp = "n/a" if n in skip else _num(mins[j], 8) if model[j] else "-"
+            lo_d, med_d, hi_d = ends[j]
+            iv = _interval(cs["low"][j], cs["high"][j], marks=(bool(lo_d), bool(hi_d)))
+            med = _num(cs["median"][j], 8) + ("*" if med_d and math.isfinite(cs["median"][j]) else "")
+            lines.append(f"{_cut(n, nw):<{nw}}  {a:>{w1}}  {b:>{w2}}  {mp:>8}  "
+                         f"{med:>9}  {iv}  {diag.cells('feature', n, compact=True)}")
         psum = self.parameter_summary()
         if psum:
             pw = min(24, max(10, max(len(n) for n in psum)))
@@ -780,7 +889,7 @@ class Posterior(DrawsView):
                           f"{'R-hat':>6}  {'ESS':>6}"]
             for n, v in psum.items():
                 lo, hi = (np.nan if x is None else x for x in v["ci90"])
-                iv = _interval(lo, hi, 0.0 if v["prior_driven"] else None)
+                iv = _interval(lo, hi, marks=(bool(v["prior_driven"]), bool(v["prior_driven"])))
                 rng = v["identified_range"]
                 rs = "-" if rng is None else f"[{_num(rng[0], 9)}, {_num(rng[1], 9)}]"
                 lines.append(f"{_cut(n, pw):<{pw}}  {_num(v['median'], 9):>9}  {iv}  {rs:^21}  "
@@ -797,30 +906,99 @@ class Posterior(DrawsView):
         pd = self.prior_driven() if pd is None else pd
         skip = self.not_identifiable() if skip is None else skip
         diag = self.diagnostics() if diag is None else diag
-        mfs = self.most_frequent_set()
-        foot = [f"selected (P(c=1) > 0.5): {', '.join(self.selected()) or 'none'}; most frequent set: "
-                f"{{{', '.join(mfs['features'])}}} in {(mfs['frequency'] or 0.0):.1%} of kept draws"]
+        foot = [self._indicator_footer()]
         if self.identified is not None:
             a = self.identified.get("alpha")
-            foot.append("min|w_p|: smallest penalty with which the rankings order every cross-group pair"
+            sampled = isinstance(self.identified.get("pairs"), Mapping) and self.identified["pairs"].get("n_pairs")
+            foot.append("min|w_p|: smallest penalty with which the rankings order every "
+                        + (f"one of the {sampled:,} sampled pairs the likelihood uses" if sampled else "cross-group pair")
                         + (f" with probability >= {1 - a:g}" if _is_real(a) else "")
                         + " (identification); '-' = none")
         else:
             foot.append("min|w_p|: '-' (no identification attached)")
         driven = [n for n, x in zip(names, pd) if x] + [n for n, v in psum.items() if v["prior_driven"]]
-        if driven:
+        sens = self.prior_sensitivity()
+        if sens.measured:
+            foot.append(f"* prior-driven (measured: {sens.basis}): "
+                        + (", ".join(driven) if driven else "none of the intervals")
+                        + "; summary.json flags every reported number (posterior.prior_driven)")
+        elif driven:
             src = "the identification" if self.identified is not None else \
                 "heuristic: interval end beyond the prior's own 5%/95% quantile"
-            foot.append(f"* prior-driven ({src}): {', '.join(driven)}: the data leave this end open, so it, "
+            foot.append(f"* prior-driven ({src}; not measured: the {self.method} sampler ignores the prior or it "
+                        f"cannot be reweighted): {', '.join(driven)}: the data leave this end open, so it, "
                         "the median and the mean move with the prior")
         if skip:
             foot.append("not identifiable (no R-hat/ESS): " + "; ".join(f"{n} ({r})" for n, r in skip.items()))
+        if self.method in ("authors", "paper"):
+            st = self.authors_statistic()
+            foot.append(f"authors' statistic (mean of c*w_p over the last {st['last_iterations']} iterations, mean of "
+                        "chains) vs mean over all kept draws: " + "; ".join(
+                            f"{n} {_num(st['value'][n], 9)} vs {_num(st['posterior_mean'][n], 9)}" for n in names))
         acc = ", ".join(f"{k} {v:.1%}" for k, v in self.acceptance_rate().items())
         foot.append(f"method {self.method}; {self.n_chains} chains x {self.settings['iterations']:,} iterations "
                     f"({self.n_draws} kept each); acceptance {acc}; {self.runtime_s:.2f} s")
         foot.append(diag.footer(compact=True))
         foot += [f"warning: {m}" for m in self.warnings()]
         return foot
+
+    def authors_statistic(self, last: int = AUTHORS_LAST_ITERATIONS) -> dict[str, Any]:
+        r"""The statistic the paper authors' code reports: per chain, the mean of :math:`c_j w_{p,j}` over its last
+        ``last`` iterations (their code keeps the last 500 of the chain), then averaged over chains.
+
+        It describes where a chain was when it stopped, not a posterior: for the ``paper`` / ``authors``
+        samplers (no proper posterior over :math:`c`) it drifts with the chain's length. Shown beside the mean
+        over all kept draws (``posterior.mean_effective_penalty``). With thinning, the kept draws that fall in
+        the last ``last`` iterations are used (at least one per chain).
+        """
+        thin = int(self.settings.get("thin") or 1)
+        n = max(1, min(self.n_draws, -(-int(last) // max(thin, 1))))
+        eff = np.asarray(self.effective_penalty, dtype=np.float64)[:, -n:, :].mean(axis=1)  # (chains, d)
+        names = list(self.feature_names)
+        return {"definition": f"per chain the mean of c_j * w_pj over its last {int(last)} iterations (the paper "
+                              "authors' statistic: where the chain was when it stopped), then the mean over chains",
+                "last_iterations": int(last), "draws_per_chain": int(n),
+                "value": {nm: _py(v) for nm, v in zip(names, eff.mean(axis=0))},
+                "per_chain": {nm: [_py(v) for v in eff[:, j]] for j, nm in enumerate(names)},
+                "posterior_mean": {nm: _py(v) for nm, v in zip(names, self.mean_effective_penalty)}}
+
+    def _prior_driven_block(self) -> dict[str, Any]:
+        """``posterior.prior_driven``: a flag for every number ``posterior`` reports (``None``: not measured)."""
+        names = list(self.feature_names)
+        sens = self.prior_sensitivity()
+        f = sens.flags
+        ends = self.end_flags()
+        ind_key = {"posterior": "p_constraint", "chain_frequency": "frequency_on", "fixed": None}[self.indicator_meaning]
+        out: dict[str, Any] = {"basis": sens.basis if sens.measured else (
+            "not measured (the sampler ignores the prior or it cannot be reweighted); penalty_given_active from "
+            + ("the identification's unbounded flag" if self.identified is not None else "the prior-quantile heuristic"))}
+        if ind_key is not None:
+            out[ind_key] = dict(zip(names, f["p_constraint"]))
+        out["mean_effective_penalty"] = dict(zip(names, f["mean_effective_penalty"]))
+        out["ci90"] = {n: [f["ci90_low"][j], f["ci90_high"][j]] for j, n in enumerate(names)}
+        out["penalty_given_active"] = {
+            "mean": {n: (f["given_active_mean"][j] if sens.measured else ends[j][1]) for j, n in enumerate(names)},
+            "median": {n: (f["given_active_median"][j] if sens.measured else ends[j][1]) for j, n in enumerate(names)},
+            "ci90": {n: [ends[j][0], ends[j][2]] for j, n in enumerate(names)}}
+        return out
+
+    def _indicator_footer(self) -> str:
+        """The first footer line: the selection, or what the indicator column is when it is not a selection."""
+        mfs = self.most_frequent_set()
+        most = (f"{{{', '.join(mfs['features'])}}} in {(mfs['frequency'] or 0.0):.1%} of kept draws")
+        if self.indicator_meaning == "posterior":
+            return f"selected (P(c=1) > 0.5): {', '.join(self.selected()) or 'none'}; most frequent set: {most}"
+        if self.indicator_meaning == "chain_frequency":
+            on = [n for n, c in zip(self.feature_names, self.map_indicators) if c]
+            return (f"freq on: {INDICATOR_LABELS['chain_frequency']} (share of kept draws with c_j = 1). The "
+                    f"{self.method} sampler's indicator moves (Algorithm 1: likelihood-ratio acceptance, latent "
+                    "weights) do not target a posterior, so this is not P(c=1) and no set is selected from it. MAP: "
+                    f"indicators of the highest-density visited draw, as the paper reports: {{{', '.join(on)}}}; "
+                    f"most frequent set in the chain: {most}")
+        model = [n for n, m in zip(self.feature_names, self.in_model()) if m]
+        return (f"model: bpl samples the penalties of the candidates ({', '.join(model) or 'none'}) with no "
+                "indicators, so there is no P(c=1) and no selection; features that are not candidates are fixed "
+                "at w_p = 0 and show '-'")
 
     def save(self, out_dir: str | os.PathLike[str], *, overwrite: bool = False,
              extra_json: dict[str, Any] | None = None) -> Path:
@@ -875,20 +1053,7 @@ class Posterior(DrawsView):
         than a fallback to the settings, which might not describe the prior that was used.
         """
         src: Any = self.prior if self.prior is not None else self.settings.get("weight_prior")
-        if not isinstance(src, Mapping):
-            return None
-        base = src if "kind" in src else next((src[k] for k in ("weight_prior", "weight")
-                                               if isinstance(src.get(k), Mapping)), None)
-        if base is None:
-            return None
-        feats = base.get("features", src.get("features"))
-        name = self.feature_names[j]
-        entry = (feats.get(name, feats.get(str(j))) if isinstance(feats, Mapping) else None) or {}
-        if base.get("applied") is False:  # e.g. the paper's Algorithm 1, which ignores the prior
-            return None
-        spec = {k: v for k, v in base.items() if k != "features"}
-        spec.update(entry if isinstance(entry, Mapping) else {})
-        return spec
+        return weight_prior_spec(src, self.feature_names, j)
 
     def _parameter_bounds(self) -> list[tuple[float, float] | None]:
         """Uniform prior bounds of every parameter (``settings["constraints"][m]["resolved_bounds"]``)."""
@@ -941,6 +1106,22 @@ class Posterior(DrawsView):
                        "which the groups overlap set the magnitude.")
         return out
 
+    def _required_but_off_warnings(self) -> list[str]:
+        """A feature the rankings require (identified ``min_penalty > 0``) that the run mostly switches off."""
+        if self.indicator_meaning == "fixed" or self.identified is None:
+            return []
+        label = "P(c=1)" if self.indicators_are_posterior else "its frequency on in the chain"
+        out = []
+        for j, (n, mp) in enumerate(zip(self.feature_names, self.min_penalty())):
+            if mp is None or not mp > 0 or self.p_constraint[j] >= SELECTION_THRESHOLD:
+                continue
+            out.append(f"{n}: the rankings require this penalty (|w_p| >= {mp:.4g}, identification) but {label} is "
+                       f"{self.p_constraint[j]:.3f} < 0.5, so the run leaves it out: the result contradicts the data. "
+                       "The usual cause is the prior: a very wide or bounded (flat) prior on w_p makes a needed "
+                       "penalty cost more prior mass than it gains in likelihood (P(c=1) falls as the prior widens); "
+                       "use the default scale-aware student-t prior or a smaller --prior-scale, and check convergence")
+        return out
+
     def _heuristic_warnings(self) -> list[str]:
         cs = self.conditional_summary()
         skip = self.not_identifiable()
@@ -949,8 +1130,10 @@ class Posterior(DrawsView):
                 if pd and self.p_constraint[j] > SELECTION_THRESHOLD and n not in skip]
         if not hits:
             return []
-        return [f"{', '.join(hits)}: given c_j = 1 the large-|w_p| end of the 90% interval lies beyond the prior's "
-                "own quantile, so it comes from the prior: the groups are (nearly) separated by these features and "
+        why = ("moves when the prior is made tenfold wider (measured by reweighting the draws)"
+               if self.prior_sensitivity().measured else "lies beyond the prior's own quantile")
+        return [f"{', '.join(hits)}: given c_j = 1 the 90% interval {why}, so it comes from the prior: the "
+                "groups are (nearly) separated by these features and "
                 "the rankings bound |w_p| from below only. Read the small-|w_p| end as what the data say; the far "
                 "end, median and mean move with the prior's scale or bounds, and margins raise the lower bound only "
                 "(they do not fix the scale). An identification (pbicrl.analysis.identify) gives the smallest penalty the "
@@ -1091,6 +1274,26 @@ def _num_s(x: Any) -> str:
     return f"{float(x):.0f} s" if _is_real(x) else "?"
 
 
+_INDICATOR_COLUMNS = {"posterior": ("P(c=1)", "sel"), "chain_frequency": ("freq on", "MAP"), "fixed": ("model", "")}
+"""Headers of the two indicator columns of :meth:`Posterior.table` per :data:`~pbicrl.inference.draws.INDICATOR_MEANINGS`."""
+
+
+def _indicator_cells(r: Mapping[str, Any], meaning: str) -> tuple[str, str]:
+    """The two indicator cells of a table row (a :meth:`Posterior._records` record)."""
+    if meaning == "posterior":
+        sel = r.get("selected")
+        return _prob(r.get("p_constraint")), "-" if sel is None else ("yes" if sel else "no")
+    if meaning == "chain_frequency":
+        on = r.get("map_indicator")
+        return _prob(r.get("frequency_on")), "-" if on is None else ("on" if on else "off")
+    m = r.get("in_model")
+    return "-" if m is None else ("yes" if m else "no"), ""
+
+
+def _prob(x: Any) -> str:
+    return f"{float(x):.3f}" if _is_real(x) and math.isfinite(float(x)) else "-"
+
+
 def _num(x: Any, width: int) -> str:
     """A number in at most ``width`` characters (4 significant digits), ``-`` for none / NaN."""
     if x is None or not isinstance(x, (int, float, np.integer, np.floating)) or not math.isfinite(float(x)):
@@ -1100,14 +1303,10 @@ def _num(x: Any, width: int) -> str:
     return s if len(s) <= width else f"{x:.1e}"
 
 
-def _interval(lo: float, hi: float, median_if_driven: float | None) -> str:
-    """``[  lo , hi ]`` in 24 characters; ``*`` after the end(s) on the large-|w| side when prior-driven."""
-    mark_lo = mark_hi = " "
-    if median_if_driven is not None:
-        if median_if_driven <= 0:
-            mark_lo = "*"
-        if median_if_driven >= 0:
-            mark_hi = "*"
+def _interval(lo: float, hi: float, *, marks: tuple[bool, bool] = (False, False)) -> str:
+    """``[  lo , hi ]`` in 24 characters; ``*`` after each end that is prior-driven (``marks``)."""
+    mark_lo = "*" if marks[0] else " "
+    mark_hi = "*" if marks[1] else " "
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return f"{'-':^24}"
     return f"[{_num(lo, 9):>9}{mark_lo}, {_num(hi, 9):>9}{mark_hi}]"

@@ -117,17 +117,33 @@ class _Reporter:
 def summarise(run: Any, labelled: Any) -> dict[str, Any]:
     """P(c=1), the selected set, penalty intervals given c = 1 and the reward distribution per group.
 
+    P(c=1) and the selection only for a sampler whose indicators are posterior probabilities (``pbicrl``);
+    otherwise each feature carries what its column is (``frequency_on`` and ``map_indicator``, or
+    ``in_model``), ``selected`` is ``None`` and ``indicator_label`` names the column
+    (:data:`pbicrl.inference.draws.INDICATOR_MEANINGS`).
+
     Rewards are the length-normalised returns :math:`\\bar\\phi_i^\\top (w_n + \\hat e)` of the labelled
     trajectories under the selected-set estimate :math:`\\hat e` (selected features at their conditional
     posterior medians, :meth:`~pbicrl.inference.results.DrawsView.point_estimate`).
     """
+    from pbicrl.inference.draws import INDICATOR_LABELS
+
     cond = run.conditional_summary()
     pc = run.p_constraint
+    meaning = run.indicator_meaning
+    model = run.in_model()
+    chosen = run.selected()
     feats = []
     for j, name in enumerate(run.feature_names):
         def num(x: float) -> float | None:
             return float(x) if np.isfinite(x) else None
-        feats.append({"name": name, "p_constraint": float(pc[j]), "selected": bool(name in run.selected()),
+        if meaning == "posterior":  # P(c=1) and a selection only where they are posterior probabilities
+            ind: dict[str, Any] = {"p_constraint": float(pc[j]), "selected": bool(name in chosen)}
+        elif meaning == "chain_frequency":
+            ind = {"frequency_on": float(pc[j]), "map_indicator": bool(run.map_indicators[j])}
+        else:
+            ind = {"in_model": bool(model[j])}
+        feats.append({"name": name, **ind,
                       "median": num(cond["median"][j]), "low": num(cond["low"][j]), "high": num(cond["high"][j])})
     eff, _ = run.point_estimate("selected")
     settings = run.settings
@@ -142,7 +158,8 @@ def summarise(run: Any, labelled: Any) -> dict[str, Any]:
                        "quantiles": [float(v) for v in q], "mean": float(x.mean())})
     summary = run.summary if hasattr(run, "summary") else {}
     conv = (summary.get("extra") or {}).get("convergence")
-    return {"features": feats, "selected": run.selected(), "groups": groups,
+    return {"features": feats, "selected": chosen if meaning == "posterior" else None,
+            "indicator_meaning": meaning, "indicator_label": INDICATOR_LABELS[meaning], "groups": groups,
             "n_draws": int(run.n_chains * run.n_draws), "warnings": list(summary.get("warnings", [])),
             # None: a fixed-length run (no stopping rule); False: shown as NOT CONVERGED above the results
             "converged": None if not isinstance(conv, dict) else bool(conv.get("converged")),

@@ -175,7 +175,8 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
         j = -1
         if latent:
             j = cand[min(int(u_j[t] * nc), nc - 1)]
-            if ((it + 1) % f_s) != 0:  # paper counts iterations from 1
+            # paper counts iterations from 1; the authors' code from 0 (its first iteration steps a weight)
+            if ((it + (0 if mode == MODE_AUTHORS else 1)) % f_s) != 0:
                 move = MOVE_FLIP
             elif j >= d_known and u_mv[t] < p_theta:
                 move = MOVE_PARAMETER
@@ -356,8 +357,9 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
             lp_newj = logprior_w(pkind[j], prm, j, w_new) if use_prior else 0.0
             if lp_newj > -np.inf:
                 if c[j] == 0:
-                    # paper mode only: an inactive weight leaves the likelihood unchanged, always accepted
-                    w[j] = w_new
+                    # latent modes only: an inactive weight leaves the likelihood unchanged, always accepted; the
+                    # authors' code proposes from the effective weights, so an inactive one stays 0
+                    w[j] = 0.0 if mode == MODE_AUTHORS else w_new
                     accepted = True
                 else:
                     for i in range(N):

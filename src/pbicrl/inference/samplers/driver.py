@@ -226,7 +226,8 @@ def _move_codes(kernel: Kernel, iterations: np.ndarray, u_j: np.ndarray, u_mv: n
     j = cand[np.minimum((u_j * nc).astype(np.int64), nc - 1)]  # the loop's int(u * nc): truncation
     theta_move = (j >= dk) & (u_mv < p_theta)
     if s.method in ("paper", "authors"):
-        code = np.where((np.asarray(iterations) + 1) % int(s.f_s) != 0, MOVE_FLIP,
+        first = 0 if s.method == "authors" else 1  # the paper counts iterations from 1, the authors' code from 0
+        code = np.where((np.asarray(iterations) + first) % int(s.f_s) != 0, MOVE_FLIP,
                         np.where(theta_move, MOVE_PARAMETER, MOVE_WEIGHT))
     elif s.method == "bpl":
         code = np.where(theta_move, MOVE_PARAMETER, MOVE_WEIGHT)

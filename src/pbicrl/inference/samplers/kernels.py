@@ -32,7 +32,10 @@ Three methods share one compiled loop (:mod:`pbicrl.inference.samplers._mcmc`):
 ``"authors"`` - Algorithm 1 as the authors' public code runs it: identical to ``"paper"`` except that a
     flip to off sets the weight to zero (switching it back on starts from zero), with their initialisation:
     indicators Bernoulli(1/2) and penalties uniform on ``init_range`` (their point mass: [-30, -1];
-    Fetch-Reach: [-100, -10]) for every feature, nominal ones included. The reset acts as shrinkage of
+    Fetch-Reach: [-100, -10]) for every feature, nominal ones included, kept only where the indicator starts
+    on (a feature that starts off has weight 0). As in their code a weight step on a feature that is off leaves
+    its weight at 0 (they propose from the effective weights), and the schedule counts iterations from 0: the
+    first iteration, and every ``f_s``-th after it, steps a weight. The reset acts as shrinkage of
     :math:`c_j w_{p,j}` toward zero; judge this sampler on the effective penalty.
 
 ``"bpl"`` - Algorithm 3: every candidate feature active, random walk on :math:`w_p` (optionally with a
@@ -469,7 +472,9 @@ class Kernel:
         if s.method == "paper":
             w = rng.normal(0.0, s.init_scale, d)
         elif s.method == "authors":
-            w = rng.uniform(s.init_range[0], s.init_range[1], d)
+            # the authors' code draws a weight for every feature but keeps it only where c_j starts on: a feature
+            # that starts off has weight 0 (and, with the reset, is switched on at 0)
+            w = np.where(c == 1, rng.uniform(s.init_range[0], s.init_range[1], d), 0.0)
         elif s.method == "bpl":
             w = self._bpl_initial_weights(rng)
         else:

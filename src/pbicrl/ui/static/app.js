@@ -459,23 +459,36 @@ function renderResult(res, revision) {
   out.textContent = "";
   const p = document.createElement("p");
   p.className = "small";
-  p.innerHTML = `Labels of revision ${revision}; ${res.n_draws} draws. Selected: <b></b>`;
-  p.querySelector("b").textContent = res.selected.length ? res.selected.join(", ") : "none";
+  // P(c=1) and a selection only where they are posterior probabilities (res.indicator_meaning "posterior");
+  // a chain frequency (paper/authors samplers) or bpl's model membership is shown under its own name
+  const meaning = res.indicator_meaning || "posterior";
+  if (res.selected === null || res.selected === undefined) {
+    p.textContent = `Labels of revision ${revision}; ${res.n_draws} draws. No selection: the column "${res.indicator_label}" is not a posterior probability.`;
+  } else {
+    p.innerHTML = `Labels of revision ${revision}; ${res.n_draws} draws. Selected: <b></b>`;
+    p.querySelector("b").textContent = res.selected.length ? res.selected.join(", ") : "none";
+  }
   out.appendChild(p);
   const t = document.createElement("table");
   t.id = "posterior-table";
-  t.innerHTML = "<thead><tr><th>feature</th><th>P(c=1)</th><th>sel.</th><th>median w_p | c=1</th><th>90% interval</th></tr></thead>";
+  const second = { posterior: "sel.", chain_frequency: "MAP", fixed: "" }[meaning];
+  t.innerHTML = "<thead><tr><th>feature</th><th></th><th></th><th>median w_p | c=1</th><th>90% interval</th></tr></thead>";
+  t.querySelectorAll("th")[1].textContent = meaning === "posterior" ? "P(c=1)" : res.indicator_label;
+  t.querySelectorAll("th")[2].textContent = second;
   const tb = document.createElement("tbody");
   for (const f of res.features) {
     const tr = document.createElement("tr");
-    const cells = [f.name, null, f.selected ? "✓" : "", fmt(f.median), f.low === null ? "–" : `[${fmt(f.low)}, ${fmt(f.high)}]`];
+    const mark = meaning === "posterior" ? (f.selected ? "✓" : "") : meaning === "chain_frequency" ? (f.map_indicator ? "on" : "off") : "";
+    const cells = [f.name, null, mark, fmt(f.median), f.low === null ? "–" : `[${fmt(f.low)}, ${fmt(f.high)}]`];
     cells.forEach((c, j) => {
       const td = document.createElement("td");
       if (j === 1) {
+        if (meaning === "fixed") { td.textContent = f.in_model ? "yes" : "no"; tr.appendChild(td); return; }
+        const v = meaning === "posterior" ? f.p_constraint : f.frequency_on;
         const bar = document.createElement("span");
         bar.className = "pbar";
-        bar.style.width = `${Math.round(50 * f.p_constraint)}px`;
-        td.append(bar, document.createTextNode(f.p_constraint.toFixed(3)));
+        bar.style.width = `${Math.round(50 * v)}px`;
+        td.append(bar, document.createTextNode(v.toFixed(3)));
       } else td.textContent = c;
       tr.appendChild(td);
     });
