@@ -934,6 +934,24 @@ class Dataset:
             raise DatasetError(f"path: {path} is a directory; give a file name such as {path / 'demos.npz'}")
         if path.exists() and not overwrite:
             raise FileExistsError(f"path: {path} already exists; choose another name or pass overwrite=True")
+        arrays = self.to_arrays()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                (np.savez_compressed if compress else np.savez)(fh, **arrays)
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
+            if overwrite:
+                os.replace(tmp, path)
+            else:
+                _rename_no_clobber(tmp, path)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+        return path
+
+    def to_arrays(self) -> dict[str, NDArray]:
+        """The fields :meth:`save` writes, by name (the ``.npz`` layout of the module docstring)."""
         arrays: dict[str, NDArray] = {
             "features": self.features, "offsets": self.offsets, "group": self.group,
             "feature_names": np.array(self.feature_names, dtype=np.str_),
@@ -952,20 +970,32 @@ class Dataset:
             arrays["skipped"] = self.skipped
         if self.env_id is not None:
             arrays["env_id"] = np.array(self.env_id, dtype=np.str_)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        clean_stale_temporaries(path)
-        fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                (np.savez_compressed if compress else np.savez)(fh, **arrays)
-            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
-            if overwrite:
-                os.replace(tmp, path)
-            else:
-                _rename_no_clobber(tmp, path)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
-        return path
+        return arrays
+
+    def content_hash(self) -> str:
+        """SHA-256 (hex) of what the likelihood reads: features, offsets, groups, states, feature names and
+        nominal weights (not group names, ``env_id`` or the labelling fields).
+
+        A run records it (``extra.data.sha256``) so that an export can tell the run's dataset from another one.
+        """
+        import hashlib
+
+        h = hashlib.sha256()
+        for key in ("features", "offsets", "group", "states", "nominal_weights"):
+            v = getattr(self, key)
+            if v is None:
+                h.update(f"{key}:none;".encode())
+                continue
+            a = np.ascontiguousarray(v, dtype=np.float64 if v.dtype.kind == "f" else np.int64)
+            h.update(f"{key}:{a.dtype.str}:{a.shape};".encode())
+            h.update(a.tobytes())
+        h.update(("feature_names:" + "\x1f".join(self.feature_names)).encode("utf-8"))
+        return h.hexdigest()
+
+    @property
+    def source(self) -> Path | None:
+        """The file this dataset was read from (:meth:`load`, :func:`load_dataset`), or None if built in memory."""
+        return getattr(self, "_source", None)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], *, allow_unlabelled: bool = False) -> "Dataset":
@@ -993,7 +1023,7 @@ class Dataset:
             warn(f"{path}: ignored unknown field(s) {', '.join(repr(k) for k in unknown)}; the fields of a dataset "
                  f"are {', '.join(_FIELDS)}")
         try:
-            return cls(
+            ds = cls(
                 features=content["features"],
                 offsets=content["offsets"],
                 group=content["group"],
@@ -1009,6 +1039,8 @@ class Dataset:
             )
         except DatasetError as exc:
             raise DatasetError(f"{path}: {exc}") from None
+        object.__setattr__(ds, "_source", path.resolve())  # runs record it (not a field: copies are other data)
+        return ds
 
     def __repr__(self) -> str:
         counts = ", ".join(("unlabelled" if k == 0 else f"G{k}{' ' + repr(self.group_name(k)) if self.group_names else ''}")
