@@ -356,3 +356,23 @@ def test_infer_takes_dataset_names_and_paths_like_the_cli(tmp_path):
         pbicrl.infer("no_such_dataset", progress=False)
     with pytest.raises(TypeError, match="expected a Dataset, a .npz path"):
         pbicrl.infer(42, progress=False)
+
+
+def test_loading_a_run_warns_once_per_message_in_one_line_per_feature(fresh, tmp_path):
+    """issue 30 item 8: load_run and table() repeated the identification's paragraphs; one short line per
+    feature now, each issued once per call, the full text in summary.json."""
+    _, post = fresh
+    run = post.save(tmp_path / "run")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", PbicrlWarning)
+        back = pbicrl.load_run(run)
+    msgs = [str(w.message) for w in caught if w.category is PbicrlWarning]
+    assert len(msgs) == len(set(msgs))
+    per_feature = [m for m in msgs if m.split(":", 1)[0] in back.feature_names]
+    assert per_feature and all(len(m) < 100 for m in per_feature)
+    s = json.loads((run / "summary.json").read_text())
+    ident = s["identified"]
+    assert ident["warnings"] == [m for m in s["warnings"] if m in ident["warnings"]]
+    assert set(ident["explanations"]) >= {m.split(":", 1)[0] for m in ident["warnings"]}
+    table_lines = [ln for ln in back.table(width=200).splitlines() if ln.startswith("warning: ")]
+    assert len(table_lines) == len(back.warnings())

@@ -177,9 +177,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
     else:
-        print(res.table())
-        for w in res.warnings():
-            print(f"warning: {w}", file=sys.stderr)
+        print(res.table())  # its warning lines, once (they used to be printed again on stderr)
     return 0
 
 

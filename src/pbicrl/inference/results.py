@@ -925,8 +925,16 @@ class Posterior(DrawsView):
         return out
 
     def _identification_warnings(self) -> list[str]:
+        from pbicrl.analysis.identify import short_warnings
+
         ident = self.identified or {}
         given = ident.get("warnings")
+        short = short_warnings(ident)  # one line per feature, also for runs that stored the long paragraphs
+        if short is not None:
+            feats = set(ident.get("features") or {})
+            other = [str(m) for m in given if str(m).split(":", 1)[0] not in feats] \
+                if isinstance(given, (list, tuple)) else []
+            return short + other
         if isinstance(given, (list, tuple)):
             return [str(m) for m in given]
         alpha = ident.get("alpha")
