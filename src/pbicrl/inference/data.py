@@ -60,7 +60,7 @@ from pbicrl._atomic import clean_stale_temporaries, temporary_prefix, umask
 __all__ = [
     "Dataset", "DatasetError", "DatasetNotFoundError", "load_dataset", "resolve_dataset_path",
     "list_shipped_datasets", "ArrayHeader", "inspect_npz", "memory_limit_bytes", "clean_stale_temporaries",
-    "temporary_prefix", "MAX_GROUPS", "file_kind", "format_bytes", "shipped_dir",
+    "temporary_prefix", "MAX_GROUPS", "file_kind", "format_bytes", "shipped_dir", "SHIPPED_ENV_IDS",
 ]
 
 MAX_GROUPS = 1000
@@ -69,6 +69,11 @@ as K offsets (nothing K x K) and run on 20,000 single-trajectory groups; what st
 pairwise likelihood with sampled pairs (``pairs=n``: n pairs for each of the K(K-1)/2 group pairs, drawn in a
 loop over them), a general K x K margin matrix, and ``suggest`` (O(M K^2) time per draw for M candidates). The
 cap stays until those check their own sizes."""
+
+SHIPPED_ENV_IDS = {"point_mass": "point_mass", "fetch_reach": "fetch_reach", "grid": "grid",
+                   "halfcheetah": "halfcheetah", "ant": "ant"}
+"""The environment of each shipped dataset (``example`` is synthetic: none); :meth:`Dataset.load` sets it, so a
+shipped dataset and a pool made from it (:meth:`Dataset.as_pool`) are drawn with their goal and regions."""
 
 _FIELDS = ("features", "offsets", "group", "states", "actions", "feature_names", "nominal_weights", "group_names",
            "gap_relation", "skipped", "env_id")
@@ -891,6 +896,28 @@ class Dataset:
             allow_unlabelled=self.allow_unlabelled and not strict,
         )
 
+    def as_pool(self, n: int | None = None, *, seed: int | np.random.Generator = 0) -> "Dataset":
+        """An unlabelled pool for ``pbicrl label``: ``n`` trajectories drawn without replacement (all of them when
+        ``n`` is None or at least the number of trajectories), every group set to 0 (unlabelled).
+
+        States, actions, features, nominal weights and ``env_id`` are kept (so the labelling page draws the
+        environment: goal, regions, walls); group names, the gap relation and skips are not. ``pbicrl pool DATA
+        --n 40 --out pool.npz`` on the command line.
+
+        Raises
+        ------
+        DatasetError
+            ``n`` is not a positive integer.
+        """
+        N = self.n_trajectories
+        if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
+            raise DatasetError(f"n: expected a positive number of trajectories, got {n!r}")
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        idx = np.arange(N) if n is None or n >= N else np.sort(rng.choice(N, size=int(n), replace=False))
+        part = self._take(idx, strict=True)
+        return Dataset(part.features, part.offsets, np.zeros(idx.size, dtype=np.int64), part.states, part.actions,
+                       part.feature_names, part.nominal_weights, env_id=part.env_id, allow_unlabelled=True)
+
     def sample_per_group(self, n: int, seed: int | np.random.Generator | None = 0) -> "Dataset":
         """Draw ``n`` trajectories from every group without replacement (all if a group has fewer)."""
         if n < 1:
@@ -1039,6 +1066,9 @@ class Dataset:
             )
         except DatasetError as exc:
             raise DatasetError(f"{path}: {exc}") from None
+        if ds.env_id is None and path.stem in SHIPPED_ENV_IDS and path.resolve().parent == shipped_dir().resolve():
+            # shipped files predate the env_id field; rewriting them would change every shipped-data tag
+            ds = dataclasses.replace(ds, env_id=SHIPPED_ENV_IDS[path.stem])
         object.__setattr__(ds, "_source", path.resolve())  # runs record it (not a field: copies are other data)
         return ds
 

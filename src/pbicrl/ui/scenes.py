@@ -144,7 +144,12 @@ def scene_for(dataset: Dataset, env_id: str | None = None) -> dict[str, Any]:
     if env in ("halfcheetah", "ant") and k >= 1:
         return _wall(dataset, env)
     note = None
-    if raw and env is None:
+    if not raw:
+        # say so, and how to fix it: a pool made without its environment is drawn without goal or regions
+        note = ("no environment recorded (env_id), so no goal or regions are drawn: start with --env ENV "
+                f"({', '.join(KNOWN_ENVS)}), or make the pool with 'pbicrl pool DATA --n 40 --out pool.npz', which "
+                "keeps the data's env_id")
+    elif raw and env is None:
         note = f"environment {raw!r} is not one pbicrl knows how to draw ({', '.join(KNOWN_ENVS)})"
     elif env is not None:
         note = f"the states ({k} columns) do not fit the {env} picture"
