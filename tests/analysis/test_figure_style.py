@@ -91,3 +91,31 @@ def test_posterior_marks_the_identified_min_penalty(plain):
     texts = [t.get_text() for lg in fig.legends for t in lg.get_texts()]
     if any(m is not None and m > 0 for m in post.min_penalty()):
         assert any(t.startswith("min|w_p|") for t in texts)
+
+
+def test_report_figures_keep_legends_off_the_data_and_label_every_axis(tmp_path, monkeypatch):
+    """The reproduction figures (weights, CMSE, sensitivity) and the close-the-loop figure, drawn again from the
+    results in docs/ (the same call that regenerated them): every one passes the layout check."""
+    import json
+    import shutil
+    from pathlib import Path
+
+    import matplotlib.pyplot as plt
+
+    from pbicrl.experiments.close_loop import plot as close_loop_plot
+    from pbicrl.experiments.reproduce.figures import redraw
+
+    caught = []
+    real_close = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: (caught.append(fig), real_close(fig))[1])
+    docs = Path(__file__).resolve().parents[2] / "docs"
+    for name in ("point-mass", "fetch-reach", "grid", "halfcheetah", "ant", "sensitivity"):
+        d = tmp_path / name
+        d.mkdir()
+        shutil.copy(docs / "reproduction" / name / "results.json", d / "results.json")
+        files = redraw(d)
+        assert files and all((d / f).stat().st_size > 10_000 for f in files)
+    close_loop_plot(json.loads((docs / "figures" / "close_loop_results.json").read_text()), tmp_path / "cl.png")
+    assert len(caught) == 7
+    for fig in caught:
+        assert style.layout_problems(fig) == [], fig.axes[0].get_title()
