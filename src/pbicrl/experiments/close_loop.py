@@ -340,21 +340,30 @@ def plot_paths(paths: dict[str, list[np.ndarray]], path: Path, seed: int) -> Non
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle
 
+    from matplotlib.patches import Patch
+
+    from pbicrl.analysis import style
     from pbicrl.envs.point_mass import HIGH, LOW, POINT_MASS_TASK as task
 
-    fig, axes = plt.subplots(1, len(paths), figsize=(3.2 * len(paths), 3.3), squeeze=False)
-    for ax, (kind, ps) in zip(axes[0], paths.items()):
-        for disc, colour in ((task.orange, "orange"), (task.red, "red"), (task.goal, "limegreen")):
-            ax.add_patch(Circle(disc.centre, disc.radius, color=colour, alpha=0.35))
-        for p in ps:
-            ax.plot(p[:, 0], p[:, 1], "-", color="black", lw=0.7, alpha=0.6)
-        ax.set_xlim(LOW, HIGH)
-        ax.set_ylim(LOW, HIGH)
-        ax.set_aspect("equal")
-        ax.set_title(f"{kind} (seed {seed})", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    with style.rc():
+        fig, axes = plt.subplots(1, len(paths), figsize=(3.4 * len(paths) + 1.8, 3.6), squeeze=False,
+                                 layout="constrained")
+        for ax, (kind, ps) in zip(axes[0], paths.items()):
+            for name, disc in (("orange", task.orange), ("red", task.red), ("goal", task.goal)):
+                ax.add_patch(Circle(disc.centre, disc.radius, color=style.REGION_COLOURS[name], alpha=0.35))
+            for p in ps:
+                ax.plot(p[:, 0], p[:, 1], "-", color="black", lw=0.7, alpha=0.6)
+            ax.set_xlim(LOW, HIGH)
+            ax.set_ylim(LOW, HIGH)
+            ax.set_aspect("equal")
+            ax.set_xlabel("x (arena units)")
+            ax.set_ylabel("y (arena units)")
+            ax.set_title(f"{kind} policy (seed {seed})")
+        handles = [Patch(color=style.REGION_COLOURS[n], alpha=0.5, label=f"{n} region") for n in ("goal", "orange", "red")]
+        fig.legend(handles=handles + [plt.Line2D([], [], color="black", lw=0.8, label="evaluation episode")],
+                   loc="outside right center", frameon=False)
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
 
 
 __getattr__ = moved_to_cli(__name__, {"main": "pbicrl.cli.close_loop"})  # the command line moved
