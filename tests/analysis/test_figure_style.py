@@ -116,6 +116,6 @@ def test_report_figures_keep_legends_off_the_data_and_label_every_axis(tmp_path,
         files = redraw(d)
         assert files and all((d / f).stat().st_size > 10_000 for f in files)
     close_loop_plot(json.loads((docs / "figures" / "close_loop_results.json").read_text()), tmp_path / "cl.png")
-    assert len(caught) == 7
+    assert len(caught) == 9  # weights and reward distributions of two, grid, two CMSE, sensitivity, close the loop
     for fig in caught:
         assert style.layout_problems(fig) == [], fig.axes[0].get_title()

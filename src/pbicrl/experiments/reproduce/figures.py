@@ -7,7 +7,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["pyplot", "sensitivity_figure", "weights_figure", "sensitivity_panels_figure", "redraw", "WEIGHTS_YLABEL"]
+__all__ = ["pyplot", "sensitivity_figure", "weights_figure", "sensitivity_panels_figure", "reward_distributions_figure",
+           "redraw", "WEIGHTS_YLABEL"]
 
 
 def pyplot() -> Any:
@@ -134,6 +135,40 @@ def sensitivity_panels_figure(d: Path, panels: Sequence[tuple[str, Sequence[str]
     return "sensitivity.png"
 
 
+def reward_distributions_figure(d: Path, sub: Any, true_w: Any, wn: Any, rows: dict[str, dict[str, Any]]) -> str:
+    """Appendix figure: every demonstration's mean reward per group (dots; mean ± 1 std in the group's colour)
+    under the true weights, PBICRL with m = 0 and with tuned margins (seed 0's MAP), on seed 0's subsample."""
+    from pbicrl.analysis import style
+
+    plt = pyplot()
+    with style.rc():
+        fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.6), layout="constrained")
+        rng = np.random.default_rng(0)  # jitter only
+        F = sub.mean_features
+        cols = style.group_colours(len(sub.group_labels))
+        panels = [("true weights", np.asarray(true_w, float))]
+        for label in ("PBICRL, m = 0", "PBICRL, tuned margins"):
+            panels.append((f"{label} (seed 0, MAP)", np.asarray(wn, float) + np.array(rows[label]["per_seed"][0])))
+        for ax, (label, w) in zip(axes, panels):
+            r = F @ w
+            for k, g in enumerate(sub.group_labels):
+                v = r[sub.group == g]
+                ax.scatter(k + 0.15 * rng.standard_normal(v.size), v, s=6, color="0.55", alpha=0.6)
+                ax.errorbar(k, v.mean(), yerr=v.std(), fmt="o", color=cols[k], ms=7, capsize=4, lw=2)
+            ax.set_xticks(range(len(sub.group_labels)), [f"G{g}" for g in sub.group_labels])
+            ax.set_xlabel("group (best first)")
+            ax.set_ylabel("mean reward per step")
+            ax.set_title(label)
+        from matplotlib.lines import Line2D
+
+        fig.legend(handles=[Line2D([], [], color="0.55", marker="o", ls="none", ms=3, label="one demonstration"),
+                            Line2D([], [], color="0.2", marker="o", ls="-", ms=6, label="group mean \u00b1 1 std")],
+                   loc="outside right center", frameon=False)
+        fig.savefig(d / "reward_distributions.png", dpi=150)
+        plt.close(fig)
+    return "reward_distributions.png"
+
+
 def redraw(report_dir: str | Path) -> list[str]:
     """Draw a report's figures again from its ``results.json`` (after a change of style; no sampling).
 
@@ -151,8 +186,12 @@ def redraw(report_dir: str | Path) -> list[str]:
         feats = list(load_dataset(name.replace("-", "_")).feature_names)
         paper = res.get("paper") or PAPER[name]
         true_pen = np.array(paper["true_weights"], float) - np.array(paper["nominal_weights"], float)
-        return [weights_figure(d, "weights.png", feats, true_pen, res["methods"], seeds=int(res["seeds"]),
-                               ylabel=WEIGHTS_YLABEL, title=f"{name}: effective penalties by method")]
+        out = [weights_figure(d, "weights.png", feats, true_pen, res["methods"], seeds=int(res["seeds"]),
+                              ylabel=WEIGHTS_YLABEL, title=f"{name}: effective penalties by method")]
+        sub = load_dataset(name.replace("-", "_")).sample_per_group(int(paper["demos_per_group"]), seed=0)
+        out.append(reward_distributions_figure(d, sub, paper["true_weights"], paper["nominal_weights"],
+                                               res["methods"]))
+        return out
     if name == "grid":
         feats = ["grey", "orange", "red"]
         rows = {k: v for k, v in res["weights"].items()}

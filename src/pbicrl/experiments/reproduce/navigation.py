@@ -11,7 +11,7 @@ import numpy as np
 
 from pbicrl.experiments.reproduce.configs import (DEFAULT_MODEL, FLAT_PRIOR, NOT_DEFAULT, PAPER_PRIOR, Context,
                                                   pairwise, run_infer_tasks, shipped_path, subsample)
-from pbicrl.experiments.reproduce.figures import WEIGHTS_YLABEL, pyplot, weights_figure
+from pbicrl.experiments.reproduce.figures import WEIGHTS_YLABEL, reward_distributions_figure, weights_figure
 from pbicrl.experiments.reproduce.markdown import fmt_mean_std, write_report
 from pbicrl.experiments.reproduce.paper import PAPER
 from pbicrl.experiments.reproduce.stats import mean_std
@@ -158,29 +158,9 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     ds_rel = {"true": tuning.group_means.tolist()}
 
     def figures(d: Path) -> list[str]:
-        plt = pyplot()
         weights_figure(d, "weights.png", feats, true_pen, rows, seeds=ctx.seeds, ylabel=WEIGHTS_YLABEL,
                        title=f"{name}: effective penalties by method")
-        # reward distributions per group: truth, m = 0, tuned (appendix figure)
-        fig, axes = plt.subplots(1, 3, figsize=(10, 3.2))
-        rng = np.random.default_rng(0)
-        sub = ds0
-        F = sub.mean_features
-        panels = [("true weights", true_w)]
-        for label in ("PBICRL, m = 0", "PBICRL, tuned margins"):
-            panels.append((label, wn + np.array(rows[label]["per_seed"][0])))
-        for ax, (label, w) in zip(axes, panels):
-            r = F @ w
-            for k, g in enumerate(sub.group_labels):
-                v = r[sub.group == g]
-                ax.scatter(k + 0.15 * rng.standard_normal(v.size), v, s=6, color="grey", alpha=0.6)
-                ax.errorbar(k, v.mean(), yerr=v.std(), fmt="o", color="tab:red")
-            ax.set_xticks(range(len(sub.group_labels)), [f"G{g}" for g in sub.group_labels])
-            ax.set_title(label, fontsize=9)
-        axes[0].set_ylabel("mean reward per demonstration")
-        fig.tight_layout()
-        fig.savefig(d / "reward_distributions.png", dpi=120)
-        plt.close(fig)
+        reward_distributions_figure(d, ds0, true_w, wn, rows)
         return ["weights.png", "reward_distributions.png"]
 
     results = {"methods": rows, "tuning": tuning.to_dict(), "paper": paper, "pairs": ctx.pairs, "protocol": ctx.pairs,
