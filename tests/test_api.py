@@ -279,3 +279,100 @@ def test_a_total_ranking_of_twenty_thousand_runs_and_exports_in_modest_memory(mo
     assert len(post.extra["margins"]) == n - 1
     assert lik.preferences.margin_offsets.size == n and lik.preferences.group_margins.size == 0
     np.testing.assert_allclose(shares.sum(axis=-1), post.log_likelihood[:, [0, 10]], rtol=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------- the run's dataset
+def test_an_api_run_exports_the_pointwise_log_likelihood_for_loo(fresh, tmp_path):
+    """issue 30 item 9: ``az.loo(pbicrl.infer(ds).to_arviz())`` used to see "1.0 observations" (the total in
+    ``sample_stats.log_likelihood``, ArviZ's fallback name) because an API run had no log_likelihood group."""
+    az = pytest.importorskip("arviz")
+    ds, post = fresh
+    assert post.extra["data"]["sha256"] == ds.content_hash()
+    data = post.to_arviz(pointwise_draws=50)  # the dataset infer() kept
+    assert "log_likelihood" in (set(data.children) if hasattr(data, "children") else set(data.groups()))
+    assert "log_likelihood" not in data["sample_stats"]  # never the name ArviZ falls back to
+    np.testing.assert_array_equal(data["sample_stats"]["total_log_likelihood"].values, post.log_likelihood)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Pareto-k of short chains
+        loo = az.loo(data, pointwise=True)
+    n = loo["n_data_points"] if hasattr(loo, "__getitem__") else loo.n_data_points
+    assert int(n) == ds.n_trajectories
+    # saved: the in-memory dataset is stored with the run, and the loaded run exports the same group
+    run = post.save(tmp_path / "run")
+    assert (run / "dataset.npz").is_file()
+    back = pbicrl.load_run(run, issue_warnings=False).to_arviz(pointwise_draws=50)
+    np.testing.assert_allclose(back["log_likelihood"]["preferences"].values,
+                               data["log_likelihood"]["preferences"].values)
+
+
+def test_an_export_without_the_dataset_is_an_error_not_a_silent_omission(fresh, tmp_path):
+    pytest.importorskip("arviz")
+    ds, post = fresh
+    run = post.save(tmp_path / "run")
+    (run / "dataset.npz").unlink()
+    back = pbicrl.load_run(run, issue_warnings=False)
+    with pytest.raises(ValueError, match=r"records no dataset file.*sha256.*pass the run's dataset"):
+        back.to_arviz()
+    assert "log_likelihood" in back.to_arviz(dataset=ds, pointwise_draws=10)
+    other = make_problem(15, labels="violations", violation_rate=0.4, seed=4).dataset
+    with pytest.raises(ValueError, match="not the data this run was inferred from"):
+        back.to_arviz(dataset=other)
+    # pointwise=False is the explicit way to export without it
+    assert "log_likelihood" not in pbicrl.load_run(run, issue_warnings=False).to_arviz(pointwise=False)
+
+
+def test_cli_export_of_an_api_run(fresh, tmp_path, capsys):
+    """``pbicrl export API_RUN --netcdf x.nc``: with the stored dataset copy it has the pointwise group; without
+    any dataset it is an error that names --data and writes nothing."""
+    az = pytest.importorskip("arviz")
+    pytest.importorskip("h5netcdf")
+    from pbicrl.cli import main
+
+    ds, post = fresh
+    run = post.save(tmp_path / "run")
+    assert main(["export", str(run), "--netcdf", str(tmp_path / "x.nc")]) == 0
+    back = az.from_netcdf(tmp_path / "x.nc")
+    assert back["log_likelihood"]["preferences"].shape[2] == ds.n_trajectories
+    (run / "dataset.npz").unlink()
+    capsys.readouterr()
+    assert main(["export", str(run), "--netcdf", str(tmp_path / "y.nc")]) != 0
+    assert "--data" in capsys.readouterr().err and not (tmp_path / "y.nc").exists()
+    path = ds.save(tmp_path / "d.npz")
+    assert main(["export", str(run), "--netcdf", str(tmp_path / "y.nc"), "--data", str(path)]) == 0
+
+
+def test_infer_takes_dataset_names_and_paths_like_the_cli(tmp_path):
+    """issue 30 item 10: ``pbicrl.infer("example")`` raised AttributeError."""
+    from pbicrl.inference.data import load_dataset, resolve_dataset_path
+
+    post = _infer("example", iterations=300)
+    assert post.extra["data"]["path"] == str(resolve_dataset_path("example").resolve())
+    assert post.extra["data"]["sha256"] == load_dataset("example").content_hash()
+    prob = make_problem(8, seed=1)
+    path = prob.dataset.save(tmp_path / "demos.npz")
+    assert _infer(path, iterations=300).extra["data"]["path"] == str(path.resolve())
+    assert _infer(str(path), iterations=300).feature_names == prob.dataset.feature_names
+    with pytest.raises(FileNotFoundError, match="no shipped dataset of that name"):
+        pbicrl.infer("no_such_dataset", progress=False)
+    with pytest.raises(TypeError, match="expected a Dataset, a .npz path"):
+        pbicrl.infer(42, progress=False)
+
+
+def test_loading_a_run_warns_once_per_message_in_one_line_per_feature(fresh, tmp_path):
+    """issue 30 item 8: load_run and table() repeated the identification's paragraphs; one short line per
+    feature now, each issued once per call, the full text in summary.json."""
+    _, post = fresh
+    run = post.save(tmp_path / "run")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", PbicrlWarning)
+        back = pbicrl.load_run(run)
+    msgs = [str(w.message) for w in caught if w.category is PbicrlWarning]
+    assert len(msgs) == len(set(msgs))
+    per_feature = [m for m in msgs if m.split(":", 1)[0] in back.feature_names]
+    assert per_feature and all(len(m) < 100 for m in per_feature)
+    s = json.loads((run / "summary.json").read_text())
+    ident = s["identified"]
+    assert ident["warnings"] == [m for m in s["warnings"] if m in ident["warnings"]]
+    assert set(ident["explanations"]) >= {m.split(":", 1)[0] for m in ident["warnings"]}
+    table_lines = [ln for ln in back.table(width=200).splitlines() if ln.startswith("warning: ")]
+    assert len(table_lines) == len(back.warnings())

@@ -74,7 +74,7 @@ _PRIOR_SETTINGS = ("prior", "prior_low", "prior_high", "prior_mean", "prior_scal
 
 
 def infer(
-    dataset: Dataset,
+    dataset: Dataset | str | os.PathLike[str],
     *,
     sampler: str = _D.sampler,
     likelihood: str = _D.likelihood,
@@ -125,8 +125,13 @@ def infer(
 
     Parameters
     ----------
-    dataset : Dataset
-        Ranked demonstrations (group 1 = best).
+    dataset : Dataset, path or name of a shipped dataset
+        Ranked demonstrations (group 1 = best): a :class:`~pbicrl.inference.data.Dataset`, a ``.npz`` file or
+        a shipped dataset's name (``"example"``), as ``pbicrl infer DATA`` takes them
+        (:func:`~pbicrl.inference.data.load_dataset`). The run records the file (when there is one) and the
+        dataset's :meth:`~pbicrl.inference.data.Dataset.content_hash` in ``extra["data"]``, and the posterior
+        keeps the dataset, so that :meth:`~pbicrl.inference.results.Posterior.to_arviz` can build the pointwise
+        log-likelihood and :meth:`~pbicrl.inference.results.Posterior.save` can store it with the run.
     sampler : {"pbicrl", "paper", "authors", "bpl"}
         MCMC sampler, see :mod:`pbicrl.inference.samplers.kernels` (formerly ``method``).
     likelihood : {"grouped", "pairwise"}
@@ -200,6 +205,7 @@ def infer(
         iterations = renamed.get("iterations", iterations)
         chains = renamed.get("chains", chains)
         jobs = renamed.get("jobs", jobs)
+    dataset = _as_dataset(dataset)
     if likelihood not in ("grouped", "pairwise"):
         raise ConfigError(f"likelihood: expected 'grouped' or 'pairwise', got {likelihood!r}")
     if likelihood == "grouped":
@@ -266,9 +272,25 @@ def infer(
     K = dataset.n_groups
     m = Margins.parse(margins, K)
     post.extra.update({"data": {"n_trajectories": dataset.n_trajectories, "n_features": dataset.n_features,
-                                "n_states": int(dataset.lengths.sum()), "group_counts": dataset.group_counts()},
+                                "n_states": int(dataset.lengths.sum()), "group_counts": dataset.group_counts(),
+                                "sha256": dataset.content_hash()},
                        "margins": m.as_dict(), "likelihood": likelihood, "pairs_seed": int(pairs_seed)})
+    if dataset.source is not None:
+        post.extra["data"]["path"] = str(dataset.source)
+    post.keep_dataset(dataset)
     return post
+
+
+def _as_dataset(dataset: Any) -> Dataset:
+    """A :class:`Dataset`, or a path / shipped name read as ``pbicrl infer DATA`` reads it."""
+    if isinstance(dataset, Dataset):
+        return dataset
+    if isinstance(dataset, (str, os.PathLike)):
+        from pbicrl.inference.data import load_dataset
+
+        return load_dataset(dataset)
+    raise TypeError(f"data: expected a Dataset, a .npz path or a shipped dataset's name (e.g. 'example'), "
+                      f"got {type(dataset).__name__}")
 
 
 def _check_p_joint(p_joint: Any, sampler: str) -> None:
@@ -292,7 +314,7 @@ def _check_groups(dataset: Dataset) -> None:
         raise ConfigError(f"data: inference needs at least two groups, the dataset has {dataset.n_groups}")
 
 
-def infer_from_config(dataset: Dataset, config: InferConfig, *, progress: bool = True) -> Posterior:
+def infer_from_config(dataset: Dataset | str | os.PathLike[str], config: InferConfig, *, progress: bool = True) -> Posterior:
     """:func:`infer` with an :class:`~pbicrl.config.InferConfig` (the same names: every field is an argument)."""
     values = config.to_dict()
     values["init_range"] = tuple(values["init_range"])

@@ -28,10 +28,15 @@ from numpy.typing import NDArray
 
 from pbicrl.inference.draws import DrawsView
 
-__all__ = ["RunRecord", "RunError", "SCHEMA_VERSION", "check_run_dir", "load_run", "constraint_set_of"]
+__all__ = ["RunRecord", "RunError", "SCHEMA_VERSION", "DATASET_FILE", "check_run_dir", "load_run",
+           "constraint_set_of", "recorded_dataset"]
 
 SCHEMA_VERSION = 2
 """Version of the ``summary.json`` layout :meth:`pbicrl.inference.results.Posterior.save` writes (files without one are 1)."""
+
+DATASET_FILE = "dataset.npz"
+"""The copy of an in-memory dataset (no ``extra.data.path``) that :meth:`pbicrl.inference.results.Posterior.save`
+stores in the run directory, so that the export can rebuild the likelihood of an API run."""
 
 _MAX_SUMMARY_BYTES = 64 << 20  # a summary.json is a few hundred KiB at most; more is not a summary
 
@@ -136,9 +141,23 @@ class RunRecord(DrawsView):
 
     @property
     def data_path(self) -> Path | None:
-        """The dataset the run used, as recorded in ``summary.json`` (``extra.data.path``), if any."""
-        p = self.extra.get("data", {}).get("path")
-        return None if p is None else Path(p)
+        """The dataset the run used: ``extra.data.path`` of ``summary.json``, else the copy :data:`DATASET_FILE`
+        stored in the run directory, if any."""
+        return recorded_dataset(self)
+
+
+def recorded_dataset(run: Any) -> Path | None:
+    """The dataset file of a run: ``extra.data.path`` when recorded, else the copy :data:`DATASET_FILE` in the run
+    directory ``run.path`` (stored for an in-memory dataset); None when neither is there. A recorded path may
+    have moved since the run."""
+    data = dict(getattr(run, "extra", {}) or {}).get("data") or {}
+    p = data.get("path")
+    if isinstance(p, str) and p:
+        return Path(p)
+    where = getattr(run, "path", None)
+    if where is not None and (Path(where) / DATASET_FILE).is_file():
+        return Path(where) / DATASET_FILE
+    return None
 
 
 def _array(z: Any, key: str, path: Path, ndim: int) -> NDArray:

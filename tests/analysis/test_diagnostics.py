@@ -176,12 +176,14 @@ def test_to_arviz_variables_named_after_features(small_post):
     post, _ = small_post
     data = post.to_arviz()
     p = data["posterior"]
-    assert list(p["penalty"].coords["feature"].values) == list(post.feature_names)
-    for var in ("indicator", "penalty"):
-        assert p[var].shape == (post.n_chains, post.n_draws, post.n_features)
+    names = list(post.feature_names)
+    varying = [n for j, n in enumerate(names) if np.ptp(post.effective_penalty[:, :, j]) > 0]
+    assert list(p["penalty"].coords["feature"].values) == varying  # the constant ones are in constant_data
+    assert p["penalty"].shape == (post.n_chains, post.n_draws, len(varying))
+    assert list(data["constant_data"]["feature"].values) == names
     assert "penalty_weight" not in p  # identical to penalty for the pbicrl sampler
     np.testing.assert_allclose(p["penalty"].sel(feature="constraint2").values, post.effective_penalty[:, :, 2])
-    np.testing.assert_allclose(data["sample_stats"]["log_likelihood"].values, post.log_likelihood)
+    np.testing.assert_allclose(data["sample_stats"]["total_log_likelihood"].values, post.log_likelihood)
     np.testing.assert_allclose(data["sample_stats"]["lp"].values, post.log_likelihood + post.log_prior)
     assert "parameter" not in p
 
@@ -192,7 +194,8 @@ def test_to_arviz_includes_parameters():
 
     rng = np.random.default_rng(6)
     th = rng.normal(size=(2, 50, 2))
-    data = to_arviz(fake_posterior(rng.normal(size=(2, 50, 3)), parameters=th, parameter_names=("box.lower0", "box.upper0")))
+    data = to_arviz(fake_posterior(rng.normal(size=(2, 50, 3)), parameters=th, parameter_names=("box.lower0", "box.upper0")),
+                     pointwise=False)  # a fake posterior: no dataset
     assert list(data["posterior"]["parameter"].coords["param"].values) == ["box.lower0", "box.upper0"]
     np.testing.assert_allclose(data["posterior"]["parameter"].values, th)
 
@@ -204,8 +207,10 @@ def test_netcdf_round_trip_and_cli(run_dir, tmp_path, capsys):
     assert main(["export", str(run_dir), "--netcdf", str(out)]) == 0
     back = az.from_netcdf(out)
     run = load_run(run_dir)
-    np.testing.assert_allclose(back["posterior"]["penalty"].values, run.effective_penalty)
-    assert list(back["posterior"]["indicator"].coords["feature"].values) == list(run.feature_names)
+    names = list(run.feature_names)
+    pen = back["posterior"]["penalty"]
+    np.testing.assert_allclose(pen.values, run.effective_penalty[:, :, [names.index(n) for n in pen["feature"].values]])
+    assert list(back["constant_data"]["feature"].values) == names
     assert main(["export", str(run_dir), "--netcdf", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err
     assert not list(tmp_path.glob(".post.nc*"))

@@ -25,6 +25,21 @@ def _groups(data):
     return set(data.children) if hasattr(data, "children") else set(data.groups())
 
 
+def _full(data, var):
+    """(chains, draws, d) draws of ``indicator`` / ``penalty`` over every feature: the posterior group's varying
+    features, the constants of constant_data elsewhere."""
+    const = data["constant_data"][f"{var}_constant"]
+    C, D = data["posterior"].sizes["chain"], data["posterior"].sizes["draw"]
+    out = np.broadcast_to(const.values, (C, D, const.size)).copy()
+    if var in data["posterior"]:
+        x = data["posterior"][var]
+        dim = x.dims[2]
+        names = list(const["feature"].values)
+        idx = [names.index(n) for n in x[dim].values]
+        out[:, :, idx] = x.values
+    return out
+
+
 def _stat(elpd, *names):
     """A field of az.loo's result under its arviz 0.x or 1.x name."""
     for n in names:
@@ -167,8 +182,9 @@ def test_each_variable_once_and_a_pointwise_log_likelihood(run_dir, ranked):
     run = load_run(run_dir)
     data = export.to_arviz(run, pointwise_draws=40)  # the dataset is found from the run's recorded path
     p = data["posterior"]
-    assert set(p.data_vars) == {"indicator", "penalty"}  # pbicrl stores w_p = 0 while off: no duplicate
-    np.testing.assert_allclose(p["penalty"].values, run.effective_penalty)
+    assert set(p.data_vars) <= {"indicator", "penalty"}  # pbicrl stores w_p = 0 while off: no duplicate
+    np.testing.assert_allclose(_full(data, "penalty"), run.effective_penalty)
+    np.testing.assert_array_equal(_full(data, "indicator"), run.indicators)
     ll = data["log_likelihood"]["preferences"]
     N = prob.dataset.n_trajectories
     assert ll.dims == ("chain", "draw", "trajectory") and ll.shape == (run.n_chains, 40, N)
@@ -176,7 +192,8 @@ def test_each_variable_once_and_a_pointwise_log_likelihood(run_dir, ranked):
     assert draws[0] == 0 and draws[-1] == run.n_draws - 1 and np.all(np.diff(draws) > 0)
     np.testing.assert_allclose(ll.sum("trajectory").values, run.log_likelihood[:, draws], rtol=1e-9, atol=1e-9)
     stats = data["sample_stats"]
-    np.testing.assert_allclose(stats["log_likelihood"].values, run.log_likelihood)
+    np.testing.assert_allclose(stats["total_log_likelihood"].values, run.log_likelihood)
+    assert "log_likelihood" not in stats  # ArviZ's fallback name for the pointwise log-likelihood
     np.testing.assert_allclose(stats["lp"].values, run.log_likelihood + run.log_prior)
     np.testing.assert_array_equal(data["constant_data"]["group"].values, prob.dataset.group)
     full = export.to_arviz(run, pointwise_draws=None)
@@ -197,9 +214,14 @@ def test_az_loo_and_summary(run_dir, ranked):
     elpd, p_loo = float(_stat(loo, "elpd_loo", "elpd")), float(_stat(loo, "p_loo", "p"))
     assert np.isfinite(elpd) and elpd < 0
     assert 0 < p_loo < 10 * prob.dataset.n_features
-    summ = az.summary(data)
-    names = prob.dataset.feature_names
-    assert {f"penalty[{n}]" for n in names} | {f"indicator[{n}]" for n in names} == set(summ.index)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no constant left for ArviZ to divide by zero on
+        summ = az.summary(data)
+    p = data["posterior"]
+    want = {f"penalty[{n}]" for n in p["penalty"]["feature"].values}
+    if "indicator" in p:
+        want |= {f"indicator[{n}]" for n in p["indicator"]["indicator_feature"].values}
+    assert want == set(summ.index) and summ["r_hat"].notna().all()
     assert {"mean", "sd"} <= set(summ.columns)
 
 
@@ -233,14 +255,15 @@ def test_without_the_likelihood_there_is_no_log_likelihood_group(ranked):
     bare = SimpleNamespace(**{k: getattr(post, k) for k in (
         "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
         "map_penalty_weights", "method", "settings", "seed")}, extra={})
-    with pytest.warns(PbicrlWarning, match="pass dataset="):
-        data = export.to_arviz(bare)
-    assert "log_likelihood" not in _groups(data) and "log_likelihood" in data["sample_stats"]
+    with pytest.warns(PbicrlWarning, match="pass the run's dataset"):
+        data = export.to_arviz(bare, pointwise="auto")
+    assert "log_likelihood" not in _groups(data) and "total_log_likelihood" in data["sample_stats"]
     with warnings.catch_warnings():
         warnings.simplefilter("error", PbicrlWarning)
         assert "log_likelihood" not in _groups(export.to_arviz(bare, pointwise=False))
-    with pytest.raises(ValueError, match="pass dataset="):
-        export.to_arviz(bare, pointwise=True)
+    for how in ({}, {"pointwise": True}):  # the default is an error, never an export az.loo would misread
+        with pytest.raises(ValueError, match=r"the run records no dataset file; pass the run's dataset \(dataset="):
+            export.to_arviz(bare, **how)
 
 
 def test_settings_that_do_not_reproduce_the_run_are_refused(ranked):
@@ -251,8 +274,10 @@ def test_settings_that_do_not_reproduce_the_run_are_refused(ranked):
         "map_penalty_weights", "method", "seed", "extra")}, settings=post.settings | {"beta": 2.0})
     with pytest.raises(ValueError, match="the run recorded"):
         export.run_likelihood(wrong, prob.dataset)
+    with pytest.raises(ValueError, match="the run recorded"):
+        export.to_arviz(wrong, dataset=prob.dataset)
     with pytest.warns(PbicrlWarning, match="the run recorded"):
-        data = export.to_arviz(wrong, dataset=prob.dataset)
+        data = export.to_arviz(wrong, dataset=prob.dataset, pointwise="auto")
     assert "log_likelihood" not in _groups(data)
     lik = PreferenceLikelihood.from_dataset(prob.dataset, margins=[0.5, 1.0])  # the right one, given explicitly
     data = export.to_arviz(wrong, likelihood=lik, pointwise_draws=10)
@@ -298,7 +323,7 @@ def test_a_grouped_run_exports_per_trajectory_shares_for_loo(tmp_path):
     assert int(_stat(loo, "n_data_points")) == prob.dataset.n_trajectories
     assert np.isfinite(float(_stat(loo, "elpd_loo", "elpd")))
     summ = az.summary(data)
-    assert {f"penalty[{n}]" for n in prob.dataset.feature_names} <= set(summ.index)
+    assert {f"penalty[{n}]" for n in data["posterior"]["penalty"]["feature"].values} <= set(summ.index)
     assert not any(i.startswith("penalty_weight") for i in summ.index)  # no duplicate rows
 
 
@@ -325,7 +350,7 @@ def test_per_draw_move_and_acceptance_go_to_sample_stats(ranked):
         "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
         "map_penalty_weights", "method", "settings", "seed")}, extra={})
     plain = export.to_arviz(bare, pointwise=False)["sample_stats"]
-    assert set(plain.data_vars) == {"log_likelihood", "lp", "log_prior"}
+    assert set(plain.data_vars) == {"total_log_likelihood", "lp", "log_prior"}
 
 
 @pytest.mark.parametrize("constraints", [None, [{"family": "axis_halfspace", "dims": [0], "name": "wall"}]])
@@ -394,3 +419,32 @@ def test_arviz_1_layout_is_a_datatree(run_dir, monkeypatch, tmp_path):
     path = export.to_netcdf(load_run(run_dir), tmp_path / "tree.nc", pointwise_draws=10)
     back = xr.open_datatree(path, engine="h5netcdf")
     assert back["log_likelihood"]["preferences"].shape[1] == 10
+
+
+def test_constant_indicators_are_not_applicable_for_rhat_not_nan(ranked):
+    """issue 30 item 11: ``az.summary`` gave NaN R-hat and a RuntimeWarning for an indicator on in every draw (and a
+    feature that is not a candidate); the export keeps such constants in constant_data, as summary.json gives null."""
+    az = pytest.importorskip("arviz")
+    _, post = ranked
+    C, D, d = post.indicators.shape
+    rng = np.random.default_rng(0)
+    c = (rng.random((C, D, 3)) < 0.5).astype(np.int8)
+    c[:, :, 0] = 1  # always on: its penalty varies
+    c[:, :, 1] = 0  # not a candidate: indicator and penalty constant
+    wp = -np.abs(rng.normal(size=(C, D, 3))) * c
+    fake = SimpleNamespace(indicators=c, penalty_weights=wp, log_likelihood=post.log_likelihood,
+                           log_prior=post.log_prior, feature_names=("on", "off", "mixed"),
+                           map_indicators=np.array([1, 0, 1], np.int8), map_penalty_weights=np.array([-1.0, 0, -2]),
+                           method="pbicrl", settings={}, seed=0, extra={})
+    data = export.to_arviz(fake, pointwise=False)
+    p = data["posterior"]
+    assert list(p["indicator"].coords["indicator_feature"].values) == ["mixed"]
+    assert list(p["penalty"].coords["feature"].values) == ["on", "mixed"]
+    const = data["constant_data"]
+    np.testing.assert_array_equal(const["indicator_constant"].values, [1.0, 0.0, np.nan])
+    np.testing.assert_array_equal(const["penalty_constant"].values, [np.nan, 0.0, np.nan])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        summ = az.summary(data)
+    assert set(summ.index) == {"indicator[mixed]", "penalty[on]", "penalty[mixed]"}
+    assert summ["r_hat"].notna().all()

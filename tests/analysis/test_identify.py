@@ -247,7 +247,8 @@ def test_sign_handling():
     assert anys["b"].min_penalty == pytest.approx(L95 / 0.3)
     assert anys["b"].direction == "+inf" and anys["b"].recession == ({"b": 1.0},)
     assert anys["b"].penalty_range == (pytest.approx(L95 / 0.3), math.inf)
-    assert "(w_p -> +inf)" in anys.warnings()[0]
+    assert anys.warnings() == [f"b: |w_p| >= {L95 / 0.3:.4g} identified; magnitude beyond that is the prior's"]
+    assert "(w_p -> +inf)" in anys.explanations()["b"]
 
 
 def test_margins_beta_alpha_move_the_scale_not_the_unboundedness():
@@ -285,8 +286,11 @@ def test_to_dict_table_and_warnings():
     msgs = res.warnings()
     assert len(msgs) == 2
     red = next(m for m in msgs if m.startswith("red:"))
-    assert f"{res['red'].min_penalty:.4g}" in red and "prior" in red and "Margins move the lower bound only" in red
-    assert "not an estimate of the true penalty" in red
+    assert red == f"red: |w_p| >= {res['red'].min_penalty:.4g} identified; magnitude beyond that is the prior's"
+    long = res.explanations()["red"]  # the full text, once: summary.json's identified.explanations
+    assert f"{res['red'].min_penalty:.4g}" in long and "Margins move the lower bound only" in long
+    assert "not an estimate of the true penalty" in long
+    assert d["warnings"] == msgs and d["explanations"]["red"] == long and "min|w_p|" in d["explanation"]
     table = res.table()
     assert "separable: yes" in table and "red" in table
     with warnings.catch_warnings(record=True) as caught:

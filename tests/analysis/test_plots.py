@@ -234,7 +234,7 @@ def test_rewards_every_group_on_its_own_scale_and_the_true_order(run):
     assert len(fig.axes) == 1 + K + 1  # all groups, one per group, MAP vs true
     for k, g in enumerate(ds.group_labels):
         zx = fig.axes[1 + k]
-        r = plots.map_returns(post, ds)[ds.group == g]
+        r = plots.estimate_returns(post, ds)[ds.group == g]  # the selected-set estimate (issue 30)
         lo, hi = zx.get_ylim()
         assert lo <= r.min() and hi >= r.max() and (hi - lo) < 2 * max(np.ptp(r), 1e-9) + 1.0  # zoomed on the group
     assert "Spearman" in fig.axes[-1].get_title()

@@ -229,3 +229,35 @@ def test_a_run_over_many_groups_suggests_from_its_recorded_gaps_without_a_k_by_k
     for i in range(2):  # the mean over the draws of the same probabilities as with the gaps given directly
         np.testing.assert_allclose(by_index[i], expected[:, i].mean(axis=0), rtol=1e-12, atol=1e-15)
 
+
+
+def test_demonstrations_already_labelled_are_never_suggested(run_and_pool, capsys):
+    """issue 30 item 7: a pool drawn from the run's own data (group set to 0, order shuffled) used to get its
+    labelled demonstrations suggested; they are matched by content and left out."""
+    from pbicrl.inference.data import load_dataset
+
+    tmp, pool_path = run_and_pool
+    labelled = load_dataset(tmp / "labelled.npz")
+    fresh = load_dataset(pool_path, allow_unlabelled=True)
+    both = Dataset.from_trajectories(
+        [labelled.trajectory(i) for i in range(labelled.n_trajectories)]
+        + [fresh.trajectory(i) for i in range(fresh.n_trajectories)],
+        np.zeros(labelled.n_trajectories + fresh.n_trajectories, dtype=np.int64),
+        feature_names=labelled.feature_names, allow_unlabelled=True)
+    order = np.random.default_rng(0).permutation(both.n_trajectories)
+    mixed = Dataset.from_trajectories([both.trajectory(int(i)) for i in order], both.group,
+                                      feature_names=both.feature_names, allow_unlabelled=True)
+    was_labelled = order < labelled.n_trajectories  # position in the mixed pool -> from the run's data
+    path = mixed.save(tmp / "mixed.npz")
+    assert main(["suggest", str(tmp / "run"), "--pool", str(path), "--n", "50", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    picked = [s["index"] for s in out["suggestions"]]
+    assert len(picked) == fresh.n_trajectories and not was_labelled[picked].any()
+    assert sorted(out["already_labelled"]) == np.flatnonzero(was_labelled).tolist()
+    assert out["n_candidates"] == fresh.n_trajectories
+    assert main(["suggest", str(tmp / "run"), "--pool", str(path)]) == 0
+    assert f"left out {labelled.n_trajectories} pool trajectories already in the labelled data" in capsys.readouterr().out
+    only_known = Dataset.from_trajectories([labelled.trajectory(i) for i in range(3)], [0, 0, 0],
+                                           feature_names=labelled.feature_names, allow_unlabelled=True)
+    assert main(["suggest", str(tmp / "run"), "--pool", str(only_known.save(tmp / "known.npz"))]) == 2
+    assert "already labelled in the run's data" in capsys.readouterr().err

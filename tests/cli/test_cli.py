@@ -165,3 +165,18 @@ def test_deprecated_names_in_a_config_file_are_reported_once(data_path, tmp_path
     assert err.count("'n_iterations' is deprecated") == 1 and "Traceback" not in err
     s = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert s["method"] == "paper" and s["iterations"] == 500 and s["chains"] == 1
+
+
+def test_identify_prints_each_warning_once_and_short(capsys):
+    """issue 30 item 8: identify printed every warning twice (in its output and again on stderr), each a paragraph
+    of 5-8 lines; now one short line per feature, once, and the long text in --json's explanations."""
+    assert main(["identify", "example"]) == 0
+    out, err = capsys.readouterr()
+    lines = [ln for ln in out.splitlines() if ln.startswith("warning: ")]
+    assert lines and len(lines) == len(set(lines)) and "warning" not in err
+    assert all(len(ln) <= 100 for ln in lines)
+    assert any("identified; magnitude beyond that is the prior's" in ln for ln in lines)
+    assert main(["identify", "example", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert [f"warning: {m}" for m in d["warnings"]] == lines
+    assert all(len(t) > 200 for t in d["explanations"].values()) and "min|w_p|" in d["explanation"]

@@ -190,6 +190,13 @@ def test_run_inference_in_the_page_and_screenshot(browser, tmp_path):
         wait(browser, lambda d: (d.find_elements(By.ID, "posterior-table")
                                  or d.find_element(By.ID, "banner").is_displayed()), timeout=240)
         assert not browser.find_element(By.ID, "banner").is_displayed(), browser.find_element(By.ID, "banner-text").text
+        # the settings that produced the result, and a time that stops with the run (it grew on every reload)
+        assert "3,000 iterations" in browser.find_element(By.ID, "run-settings").text
+        done = browser.find_element(By.ID, "progress-text").text
+        browser.refresh()
+        wait(browser, lambda d: d.find_elements(By.ID, "posterior-table"))
+        assert browser.find_element(By.ID, "progress-text").text == done
+        assert browser.find_element(By.ID, "iterations").get_attribute("value") == "3000"
         rows = browser.find_elements(By.CSS_SELECTOR, "#posterior-table tbody tr")
         assert [r.find_elements(By.TAG_NAME, "td")[0].text for r in rows] == list(session.base.feature_names)
         assert browser.find_elements(By.CSS_SELECTOR, "#reward-plot rect")
@@ -206,3 +213,106 @@ def test_run_inference_in_the_page_and_screenshot(browser, tmp_path):
         shot.parent.mkdir(parents=True, exist_ok=True)
         assert browser.save_screenshot(str(shot))
         assert shot.stat().st_size > 10_000
+
+
+# ---------------------------------------------------------------------------------------------- issue 30
+def _viewport(driver, w: int, h: int) -> None:
+    """The page's viewport exactly w x h CSS pixels (a window size would include the browser's own frame)."""
+    driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                           {"width": w, "height": h, "deviceScaleFactor": 1, "mobile": False})
+
+
+RECT = "const r = document.querySelector(arguments[0]).getBoundingClientRect(); " \
+       "return [r.left, r.top, r.right, r.bottom];"
+
+
+@pytest.mark.parametrize("size", [(1024, 768), (1600, 1000)])
+def test_layout_fits_the_viewport_from_1024_px(browser, tmp_path, size):
+    """Below ~1,200 px the page used to switch to one column, load scrolled 1,245 px down (the selected card
+    scrolled into view) and show a blank screenshot; from 1024 px the group columns and the demonstration view
+    are on screen at load."""
+    w, h = size
+    pool, _ = make_pool(tmp_path / "pool.npz")
+    try:
+        _viewport(browser, w, h)
+        with Server(LabelSession(pool, tmp_path / "labelled.npz")) as url:
+            browser.get(url)
+            wait(browser, lambda d: d.find_elements(By.CSS_SELECTOR, "#big circle"))
+            time.sleep(0.5)  # the first selection's fetch and redraw
+            assert browser.execute_script("return [window.innerWidth, window.innerHeight]") == [w, h]
+            assert browser.execute_script("return window.scrollY") == 0
+            for sel in ("#big", "#group-1", "#group-2", "#group-3"):
+                left, top, right, bottom = browser.execute_script(RECT, sel)
+                assert left >= 0 and top >= 0 and right <= w and bottom <= h, (sel, (left, top, right, bottom))
+            # three group columns side by side (not stacked), the view beside them
+            tops = [browser.execute_script(RECT, f"#group-{g}")[1] for g in (1, 2, 3)]
+            assert max(tops) - min(tops) < 1
+            assert browser.execute_script(RECT, "#big")[2] <= browser.execute_script(RECT, "#group-1")[0]
+            # the view has axes: tick values and axis names (HalfCheetah's x = 7.9 vs 8.1 needs them)
+            labels = browser.execute_script(
+                "return [...document.querySelectorAll('#big .axis-label')].map(e => e.textContent)")
+            assert labels == ["x", "y"]
+            assert len(browser.find_elements(By.CSS_SELECTOR, "#big .axis-x .tick-label")) >= 3
+            assert len(browser.find_elements(By.CSS_SELECTOR, "#big .axis-y .tick-label")) >= 3
+    finally:
+        browser.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
+
+
+def test_toast_undo_multiselect_and_full_size_figures(browser, tmp_path):
+    pool, _ = make_pool(tmp_path / "pool.npz")
+    out = tmp_path / "labelled.npz"
+    try:
+        _viewport(browser, 1280, 720)
+        with Server(LabelSession(pool, out)) as url:
+            browser.get(url)
+            wait(browser, lambda d: d.find_elements(By.ID, "card-29") and d.execute_script("return app.state !== null"))
+            body = browser.find_element(By.TAG_NAME, "body")
+            # an error while scrolled down shows where the user looks: a toast inside the viewport
+            browser.execute_script("window.scrollTo(0, document.body.scrollHeight)")
+            browser.find_element(By.ID, "card-3").click()
+            body.send_keys("7")
+            wait(browser, lambda d: d.find_element(By.ID, "banner").is_displayed())
+            assert "no group 7" in browser.find_element(By.ID, "banner-text").text
+            left, top, right, bottom = browser.execute_script(RECT, "#banner")
+            assert 0 <= left and right <= 1280 and 0 <= top and bottom <= 720
+            browser.find_element(By.ID, "banner-close").click()
+            # shift-click selects several; a key applies to all of them
+            from selenium.webdriver.common.action_chains import ActionChains
+            from selenium.webdriver.common.keys import Keys
+
+            browser.find_element(By.ID, "card-4").click()
+            for i in (5, 6):
+                ActionChains(browser).key_down(Keys.SHIFT).click(browser.find_element(By.ID, f"card-{i}")) \
+                    .key_up(Keys.SHIFT).perform()
+            assert sorted(browser.execute_script("return [...app.multi]")) == [4, 5, 6]
+            body.send_keys("2")
+            wait(browser, lambda d: all(zone_of(d, i) == "2" for i in (4, 5, 6)))
+            assert list(load_dataset(out, allow_unlabelled=True).group[[4, 5, 6]]) == [2, 2, 2]
+            # a drag then Ctrl-Z: the last change is undone, then the one before
+            browser.execute_script(DRAG, "card-7", "group-1")
+            wait(browser, lambda d: zone_of(d, 7) == "1")
+            ActionChains(browser).key_down(Keys.CONTROL).send_keys("z").key_up(Keys.CONTROL).perform()
+            wait(browser, lambda d: zone_of(d, 7) == "0")
+            ActionChains(browser).key_down(Keys.CONTROL).send_keys("z").key_up(Keys.CONTROL).perform()
+            wait(browser, lambda d: all(zone_of(d, i) == "0" for i in (4, 5, 6)))
+            assert not load_dataset(out, allow_unlabelled=True).group[[4, 5, 6, 7]].any()
+            # figures open at full size on click
+            browser.execute_script("""renderResult({features: [], selected: [], n_draws: 1, run_dir: 'x',
+                groups: [{name: 'good', n: 2, quantiles: [0, 1, 2, 3, 4, 5, 6]},
+                         {name: 'bad', n: 2, quantiles: [-6, -5, -4, -3, -2, -1, 0]}],
+                figures: ['trace.png']}, 1)""")
+            img = browser.find_element(By.CSS_SELECTOR, "#infer-out img.figure")
+            browser.execute_script("arguments[0].scrollIntoView()", img)
+            img.click()
+            wait(browser, lambda d: d.find_element(By.ID, "lightbox").is_displayed())
+            assert browser.find_element(By.ID, "lightbox-img").get_attribute("src") == img.get_attribute("src")
+            browser.find_element(By.ID, "lightbox").click()
+            wait(browser, lambda d: not d.find_element(By.ID, "lightbox").is_displayed())
+            # the reward plot has value ticks and is drawn at its own size (its text used to be ~30 px tall)
+            assert len(browser.find_elements(By.CSS_SELECTOR, "#reward-plot .tick-label")) >= 3
+            size = browser.execute_script(
+                "return parseFloat(getComputedStyle(document.querySelector('#reward-plot text')).fontSize) * "
+                "document.getElementById('reward-plot').getBoundingClientRect().width / 340")
+            assert size <= 12
+    finally:
+        browser.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})

@@ -37,7 +37,9 @@ def test_navigation_grid_wall_scenes():
 def test_unknown_environments_fall_back_to_paths_or_features():
     prob, _ = make_region_problem(4, length=12)
     sc = scene_for(prob.dataset)
-    assert sc["kind"] == "path2d" and sc["regions"] == [] and sc["note"] is None
+    # issue 30 item 1: no env_id used to give an undrawn scene silently; the page says why and how to fix it
+    assert sc["kind"] == "path2d" and sc["regions"] == [] and sc["env_id"] is None
+    assert "no environment recorded (env_id)" in sc["note"] and "--env" in sc["note"] and "pbicrl pool" in sc["note"]
     named = scene_for(dataclasses.replace(prob.dataset, env_id="my_robot"))
     assert named["kind"] == "path2d" and "my_robot" in named["note"]
     one = Dataset.from_trajectories([np.ones((4, 2)) * i for i in range(4)], [1, 1, 2, 2],

@@ -222,6 +222,11 @@ def test_run_inference_from_the_page(pool, tmp_path, figures):
             assert time.monotonic() < deadline, job
             time.sleep(0.3)
         assert job["status"] == "done", job["message"]
+        # issue 30 item 5: the time stops with the run (it grew on every reload) and the settings are shown
+        time.sleep(0.3)
+        assert c.get("/api/infer").json()["elapsed_s"] == job["elapsed_s"]
+        assert job["settings"] == {"iterations": 2000, "chains": 1, "margins": None, "seed": 0, "n_suggest": 3,
+                                   "figures": figures}
         res = job["result"]
         assert [f["name"] for f in res["features"]] == list(pbicrl.load_dataset("point_mass").feature_names)
         assert all(0.0 <= f["p_constraint"] <= 1.0 for f in res["features"])

@@ -2,14 +2,17 @@
 
 Needs ``pip install "pbicrl[diag]"`` (ArviZ and h5netcdf), imported lazily.
 
-Layout (dimension ``feature`` has the dataset's feature names as coordinates, ``param`` the parameter names
-of parametric constraints, ``trajectory`` the trajectory indices ``0..N-1``):
+Layout (dimension ``feature`` has the dataset's feature names as coordinates, in the posterior group only those
+whose draws vary; ``param`` the parameter names of parametric constraints, ``trajectory`` the trajectory
+indices ``0..N-1``):
 
 ================ ============================== ===========================================================
 group            variable                       meaning
 ================ ============================== ===========================================================
-posterior        ``indicator`` (feature)        :math:`c_j \\in \\{0, 1\\}`
-posterior        ``penalty`` (feature)          effective penalty :math:`c_j w_{p,j}`
+posterior        ``indicator``                  :math:`c_j \\in \\{0, 1\\}`, over dimension ``indicator_feature``: the
+                 (indicator_feature)            features whose indicator changes between draws
+posterior        ``penalty`` (feature)          effective penalty :math:`c_j w_{p,j}`, the features whose penalty
+                                                changes between draws
 posterior        ``penalty_weight`` (feature)   latent :math:`w_{p,j}` while :math:`c_j = 0`: only when it
                                                 differs from ``penalty`` (the ``paper`` sampler keeps it;
                                                 ``pbicrl`` and ``bpl`` do not, so it would repeat ``penalty``)
@@ -19,7 +22,8 @@ log_likelihood   ``preferences`` (trajectory)   each trajectory's share of the l
                                                 at most ``pointwise_draws`` evenly spaced draws per chain
                                                 (coordinate ``draw`` = the kept-draw index); only when the
                                                 likelihood is known (the run's dataset, or ``likelihood=``)
-sample_stats     ``log_likelihood``             total log-likelihood of all preferences, every draw
+sample_stats     ``total_log_likelihood``       total log-likelihood of all preferences, every draw (named
+                                                so that ArviZ never takes it for the pointwise one)
 sample_stats     ``lp``, ``log_prior``          log posterior (up to a constant), log prior
 sample_stats     ``move``, ``accepted``,        per-draw move type (1 flip, 2 weight, 3 parameter), whether it
                  ``acceptance_rate``            was accepted, and the fraction of iterations accepted since the
@@ -28,6 +32,12 @@ sample_stats     ``move``, ``accepted``,        per-draw move type (1 flip, 2 we
 constant_data    ``map_indicator``,             the MAP state and the nominal weights; ``group`` (trajectory)
                  ``map_penalty``,               when the dataset is known
                  ``nominal_weight`` (feature)
+constant_data    ``indicator_constant``,        the value of an indicator / penalty that is the same in every
+                 ``penalty_constant`` (feature) draw (e.g. a constraint on in every draw, or a feature that is not
+                                                a candidate), NaN where it varies. Such a quantity is left out of
+                                                the posterior group: R-hat and ESS are not applicable to it
+                                                (``summary.json`` gives ``null``), and ``az.summary`` would report
+                                                NaN with a RuntimeWarning
 ================ ============================== ===========================================================
 
 **Pointwise log-likelihood.** ``az.loo`` needs one log-likelihood term per observation. The pairwise
@@ -74,10 +84,14 @@ if TYPE_CHECKING:
     from pbicrl.inference.likelihood import PreferenceLikelihood
 
 __all__ = ["to_arviz", "to_netcdf", "pointwise_loglik", "pointwise_log_likelihood", "run_likelihood",
-           "run_margins", "MOVE_CODES", "POINTWISE_DRAWS"]
+           "run_margins", "MOVE_CODES", "POINTWISE_DRAWS", "TOTAL_LOG_LIKELIHOOD"]
 
 MOVE_CODES = MOVES
 """Per-draw move type codes of ``sample_stats.move``: :data:`pbicrl.inference.codes.MOVES`, the same object."""
+
+TOTAL_LOG_LIKELIHOOD = "total_log_likelihood"
+"""Name of the total log-likelihood in ``sample_stats`` (``log_likelihood`` there would be read by ArviZ as the
+pointwise log-likelihood of one observation; exports written before pbicrl 0.2 used that name)."""
 
 POINTWISE_DRAWS = 500
 """Default number of draws per chain for the pointwise log-likelihood (it costs one pass over all pairs each)."""
@@ -470,7 +484,9 @@ def _sample_stats(post: Any) -> dict[str, tuple[NDArray, dict[str, Any]]]:
     lp = np.asarray(getattr(post, "log_prior", None) if getattr(post, "log_prior", None) is not None
                     else np.zeros_like(ll), dtype=np.float64)
     stats: dict[str, tuple[NDArray, dict[str, Any]]] = {
-        "log_likelihood": (ll, {"long_name": "total log-likelihood of all preferences"}),
+        # not "log_likelihood": ArviZ takes a sample_stats variable of that name for the pointwise one
+        TOTAL_LOG_LIKELIHOOD: (ll, {"long_name": "total log-likelihood of all preferences (not pointwise: the "
+                                                 "log_likelihood group holds each trajectory's share)"}),
         "lp": (ll + lp, {"long_name": "log posterior (up to a constant)"}),
         "log_prior": (lp, {"long_name": "log prior"}),
     }
@@ -489,19 +505,56 @@ def _sample_stats(post: Any) -> dict[str, tuple[NDArray, dict[str, Any]]]:
     return stats
 
 
-def _find_dataset(post: Any, dataset: Any) -> "Dataset | None":
-    from pbicrl.inference.data import Dataset, load_dataset
+def _varying(x: NDArray) -> NDArray[np.bool_]:
+    """(chains, draws, d) -> (d,): True where some draw differs from the first one."""
+    flat = x.reshape(-1, x.shape[-1])
+    if flat.shape[0] == 0:
+        return np.zeros(x.shape[-1], dtype=bool)
+    return ~np.all(flat == flat[:1], axis=0)
 
+
+def _find_dataset(post: Any, dataset: Any) -> "Dataset | None":
+    """The run's dataset: ``dataset`` if given, else the one the posterior kept (:func:`pbicrl.infer`), else the
+    file the run recorded (``extra.data.path``, or the copy ``extra.data.file`` in the run directory); None when
+    none of these exists. A dataset whose content hash differs from the recorded ``extra.data.sha256`` is an error."""
+    from pbicrl.inference.data import Dataset, load_dataset
+    from pbicrl.runs import recorded_dataset
+
+    where = "dataset"
     if dataset is None:
-        dp = (dict(getattr(post, "extra", {}) or {}).get("data") or {}).get("path")
-        if dp is None or not Path(dp).is_file():
+        kept = getattr(post, "dataset", None)
+        if isinstance(kept, Dataset):
+            return kept
+        dp = recorded_dataset(post)
+        if dp is None or not dp.is_file():
             return None
-        dataset = dp
+        dataset, where = dp, f"the run's recorded dataset {dp}"
     if isinstance(dataset, (str, os.PathLike)):
+        where = where if where != "dataset" else f"dataset {os.fspath(dataset)}"
         dataset = load_dataset(dataset)
     if not isinstance(dataset, Dataset):
         raise TypeError(f"dataset: expected a Dataset or a path, got {type(dataset).__name__}")
+    want = (dict(getattr(post, "extra", {}) or {}).get("data") or {}).get("sha256")
+    if isinstance(want, str) and dataset.content_hash() != want:
+        raise ValueError(f"export: {where} is not the data this run was inferred from (content hash "
+                         f"{dataset.content_hash()[:12]}..., the run recorded {want[:12]}...); pass the run's "
+                         "dataset (dataset=, --data)")
     return dataset
+
+
+def _no_dataset_message(post: Any) -> str:
+    """Why the pointwise log-likelihood cannot be built, and what to do."""
+    from pbicrl.runs import recorded_dataset
+
+    data = dict(getattr(post, "extra", {}) or {}).get("data") or {}
+    dp = recorded_dataset(post)
+    sha = data.get("sha256")
+    what = (f"the dataset the run recorded, {dp}, does not exist any more" if dp is not None else
+            "the run records no dataset file" + (f" (only its content hash sha256 {sha[:12]}...)"
+                                                 if isinstance(sha, str) else ""))
+    return (f"export: no pointwise log-likelihood (the log_likelihood group az.loo and az.waic need): {what}; "
+            "pass the run's dataset (dataset= in Python, --data on the command line), or export without it "
+            "(pointwise=False, --no-pointwise)")
 
 
 def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, pointwise: bool | str,
@@ -517,14 +570,27 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
     base = {"chain": chain, "draw": draw}
 
     eff = c * wp
-    post_vars: dict[str, Any] = {
-        "indicator": (("chain", "draw", "feature"), c, {"long_name": "constraint indicator c"}),
-        "penalty": (("chain", "draw", "feature"), eff, {"long_name": "effective penalty c * w_p"}),
-    }
-    if not np.array_equal(wp, eff):  # the paper sampler keeps a latent w_p while c = 0; others store 0
-        post_vars["penalty_weight"] = (("chain", "draw", "feature"), wp,
-                                       {"long_name": "penalty weight w_p (latent while c = 0)"})
-    coords: dict[str, Any] = base | {"feature": names}
+    # A quantity with the same value in every draw has no R-hat or ESS (summary.json says null): it goes to
+    # constant_data, so that az.summary never reports NaN R-hat (with a RuntimeWarning) for it.
+    latent = not np.array_equal(wp, eff)  # the paper sampler keeps a latent w_p while c = 0; others store 0
+    vc = _varying(c)
+    vp = _varying(eff) | (_varying(wp) if latent else False)
+    names_arr = np.array(names, dtype=object)
+    note = ("only the features whose {} changes between draws; the others are constant_data.{}_constant "
+            "(R-hat and ESS are not applicable to a constant)")
+    post_vars: dict[str, Any] = {}
+    coords: dict[str, Any] = dict(base)
+    if vc.any():
+        post_vars["indicator"] = (("chain", "draw", "indicator_feature"), c[:, :, vc],
+                                  {"long_name": "constraint indicator c", "note": note.format("indicator", "indicator")})
+        coords["indicator_feature"] = [str(n) for n in names_arr[vc]]
+    if vp.any():
+        post_vars["penalty"] = (("chain", "draw", "feature"), eff[:, :, vp],
+                                {"long_name": "effective penalty c * w_p", "note": note.format("penalty", "penalty")})
+        if latent:
+            post_vars["penalty_weight"] = (("chain", "draw", "feature"), wp[:, :, vp],
+                                           {"long_name": "penalty weight w_p (latent while c = 0)"})
+        coords["feature"] = [str(n) for n in names_arr[vp]]
     params, pnames = _params(post)
     if params is not None:
         post_vars["parameter"] = (("chain", "draw", "param"), params,
@@ -545,6 +611,12 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
         "nominal_weight": (("feature",), np.concatenate([nominal, np.zeros(d - nominal.size)])
                            if nominal.size <= d and nominal.size else np.full(d, np.nan)),
     }
+    fixed = "the value in every draw where it never changes (not in the posterior group: R-hat and ESS are not " \
+            "applicable), NaN where it varies"
+    const["indicator_constant"] = (("feature",), np.where(vc, np.nan, c[0, 0] if D else np.nan),
+                                   {"long_name": f"indicator c: {fixed}"})
+    const["penalty_constant"] = (("feature",), np.where(vp, np.nan, eff[0, 0] if D else np.nan),
+                                 {"long_name": f"effective penalty c * w_p: {fixed}"})
     const_coords: dict[str, Any] = {"feature": names}
     map_params = getattr(post, "map_parameters", None)
     if params is not None and map_params is not None and np.size(map_params) == len(pnames):
@@ -562,8 +634,7 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
                 ds = _find_dataset(post, None)
             if likelihood is None:
                 if ds is None:
-                    raise ValueError("export: no pointwise log-likelihood without the run's dataset (its recorded "
-                                     "path is missing); pass dataset= (or --data), or likelihood=")
+                    raise ValueError(_no_dataset_message(post))
                 likelihood, constraints = run_likelihood(post, ds)
             elif constraints is None and ds is not None:
                 constraints = constraint_set_of(post, ds)
@@ -606,22 +677,27 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
 
 def to_arviz(post: Any, *, dataset: "Dataset | str | os.PathLike[str] | None" = None,
              likelihood: "PreferenceLikelihood | None" = None, constraints: "ConstraintSet | None" = None,
-             pointwise: bool | str = "auto", pointwise_draws: int | None = POINTWISE_DRAWS) -> Any:
+             pointwise: bool | str = True, pointwise_draws: int | None = POINTWISE_DRAWS) -> Any:
     """ArviZ object of a posterior (see the module docstring for its variables).
 
     Parameters
     ----------
     post : Posterior or RunRecord
     dataset : Dataset or path, optional
-        For the pointwise log-likelihood; default: the dataset recorded in the run (``extra.data.path``).
+        For the pointwise log-likelihood; default: the dataset :func:`pbicrl.infer` kept with the posterior, else
+        the file the run recorded (``extra.data.path``, or the copy ``extra.data.file`` that
+        :meth:`~pbicrl.inference.results.Posterior.save` stores for an in-memory dataset). Checked against the
+        recorded content hash (``extra.data.sha256``) when there is one.
     likelihood : PreferenceLikelihood, optional
         The likelihood the run sampled; default: rebuilt from the run's settings and ``dataset`` and
         checked against the recorded log-likelihood (:func:`run_likelihood`).
     constraints : ConstraintSet, optional
         With ``likelihood``, the run's parametric constraints (default: rebuilt from the settings).
     pointwise : True, False or "auto"
-        Whether to store the pointwise log-likelihood; ``"auto"`` stores it when the likelihood is known and
-        otherwise warns (:class:`~pbicrl.errors.PbicrlWarning`) and leaves out the ``log_likelihood`` group.
+        Whether to store the pointwise log-likelihood. True (default): always, and a :class:`ValueError` naming
+        what is missing when the dataset cannot be found (never an export that ``az.loo`` would misread);
+        ``"auto"`` stores it when the likelihood is known and otherwise warns
+        (:class:`~pbicrl.errors.PbicrlWarning`) and leaves out the ``log_likelihood`` group.
     pointwise_draws : int or None
         At most this many evenly spaced draws per chain for it (None: all).
 

@@ -65,7 +65,7 @@ from pbicrl.errors import warn
 from pbicrl.inference.preferences import Margins, Preferences
 
 __all__ = ["identify", "Identification", "FeatureIdentification", "ParameterInterval", "IdentifyError",
-           "threshold_interval"]
+           "threshold_interval", "short_warnings", "WARNING_EXPLANATION"]
 
 PenaltySign = Literal["negative", "any"]
 
@@ -274,14 +274,16 @@ class Identification:
         r""":math:`\operatorname{logit}(1-\alpha)`."""
         return math.log((1.0 - self.alpha) / self.alpha)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, *, explain: bool = True) -> dict[str, Any]:
         """JSON-ready summary (``summary.json``'s ``identified`` block).
 
         Features are nested under ``"features"`` so that a feature name can never clash with a top-level
         key; ``"parameters"`` maps ``"<constraint>.<parameter>"`` to ``[low, high]`` or ``None`` (details,
-        open/closed ends and reasons in ``"parameter_details"``); infinite values are ``None``.
+        open/closed ends and reasons in ``"parameter_details"``); infinite values are ``None``. ``"warnings"``
+        holds the short lines of :meth:`warnings`, ``"explanations"`` (with ``explain``) the full text of each
+        (:meth:`explanations`) and ``"explanation"`` :data:`WARNING_EXPLANATION`.
         """
-        return {
+        out = {
             "separable": self.separable,
             "alpha": self.alpha,
             "beta": self.beta,
@@ -293,24 +295,34 @@ class Identification:
             "unbounded_directions": [dict(d) for d in self.unbounded_directions],
             "parameters": {p.name: p.interval for p in self.parameters},
             "parameter_details": {p.name: p.to_dict() for p in self.parameters},
-            "warnings": self.warnings(),
             "n_lp": self.n_lp,
             "runtime_s": self.runtime_s,
             "pairs": ({"used": "all cross-group pairs"} if self.pairs is None
                       else {"used": "sampled pairs (the ones the likelihood uses)", **self.pairs}),
         }
+        if explain:
+            out["warnings"] = short_warnings(out) or []
+            out["explanations"] = self.explanations()
+            out["explanation"] = WARNING_EXPLANATION
+        return out
 
     # ------------------------------------------------------------------------------------ messages
     def warnings(self) -> list[str]:
-        """One message per unbounded penalty and one per non-identifiable candidate."""
-        out = []
+        """One short line per non-identifiable candidate and per unbounded penalty (:func:`short_warnings`); the
+        full explanation of each is in :meth:`explanations` (``summary.json``: ``identified.explanations``)."""
+        return short_warnings(self.to_dict(explain=False)) or []
+
+    def explanations(self) -> dict[str, str]:
+        """Per feature that :meth:`warnings` names, the full explanation: why the penalty is unbounded, what the
+        separation scale means and what to report (:data:`WARNING_EXPLANATION` says it once for all)."""
+        out: dict[str, str] = {}
         level = f"{1 - self.alpha:g}"
         for f in self.features:
             if f.candidate and f.identifiable is False:
-                out.append(f"{f.name}: not identifiable - {f.reason}. Its posterior reflects only the prior; "
-                           "drop it from the candidates (or keep only one of a dependent set).")
+                out[f.name] = (f"{f.name}: not identifiable - {f.reason}. Its posterior reflects only the prior; "
+                               "drop it from the candidates (or keep only one of a dependent set).")
         for f in self.features:
-            if not f.unbounded:
+            if not f.unbounded or f.name in out:
                 continue
             toward = {"-inf": "-inf", "+inf": "+inf", "both": "+/-inf"}[f.direction or "-inf"]
             runs = "; ".join(_direction_text(d) for d in f.recession)
@@ -336,7 +348,7 @@ class Identification:
             else:
                 advice = (" Report this lower bound and the selected constraint set (P(c=1)), not the posterior mean "
                           "or interval of the magnitude. Margins move the lower bound only; they do not fix the scale.")
-            out.append(head + scale + advice)
+            out[f.name] = head + scale + advice
         return out
 
     def issue_warnings(self) -> list[str]:
@@ -391,6 +403,50 @@ class Identification:
         for msg in self.warnings():
             lines.append(f"warning: {msg}")
         return "\n".join(lines)
+
+
+WARNING_EXPLANATION = (
+    "A penalty is unbounded by the data when, along some admissible direction, no pair's probability ever "
+    "decreases as |w_p| grows and some increase: the likelihood's maximum is at infinity, so beyond the separation "
+    "scale min|w_p| (the smallest penalty with which every cross-group pair is ordered with probability >= "
+    "1 - alpha) the posterior of the magnitude is the prior's (its scale or bounds), not the data's. min|w_p| is a "
+    "scale at which the rankings are explained, not an estimate of the true penalty; 0 means the rankings are "
+    "explained without the penalty. Report the selected set (P(c=1)) and min|w_p|, not the posterior mean or "
+    "interval of the magnitude; margins move the lower bound only, they do not fix the scale. A candidate that is "
+    "not identifiable (e.g. constant across trajectories, or collinear with others) has a posterior that is only "
+    "the prior: drop it from the candidates (or keep one of a dependent set).")
+"""The long explanation behind the one-line identification warnings, given once (``summary.json``:
+``identified.explanation``; the README's *What the rankings identify*)."""
+
+
+def short_warnings(ident: Mapping[str, Any]) -> list[str] | None:
+    """One short line per feature from an identification's dict (:meth:`Identification.to_dict`, also as read back
+    from an older ``summary.json``): ``in_red: |w_p| >= 455.9 identified; magnitude beyond that is the prior's``.
+
+    None when the dict has no per-feature entries (then a caller keeps the messages it has).
+    """
+    feats = ident.get("features")
+    if not isinstance(feats, Mapping):
+        return None
+    alpha = ident.get("alpha")
+    at = f" at alpha = {float(alpha):g}" if isinstance(alpha, (int, float)) and not isinstance(alpha, bool) else ""
+    out, unbounded = [], []
+    for name, e in feats.items():
+        if not isinstance(e, Mapping):
+            continue
+        if e.get("candidate", True) and e.get("identifiable") is False:
+            out.append(f"{name}: not identifiable ({e.get('reason') or 'no information in the rankings'}); its "
+                       "posterior is the prior's")
+        elif e.get("unbounded"):
+            mp = e.get("min_penalty")
+            if not isinstance(mp, (int, float)) or isinstance(mp, bool) or not math.isfinite(mp):
+                unbounded.append(f"{name}: unbounded by the data (rankings not separable{at}); its magnitude is "
+                                 "the prior's")
+            elif float(mp) == 0.0:
+                unbounded.append(f"{name}: not required by the rankings (min|w_p| = 0); its magnitude is the prior's")
+            else:
+                unbounded.append(f"{name}: |w_p| >= {float(mp):.4g} identified; magnitude beyond that is the prior's")
+    return out + unbounded
 
 
 def _direction_text(d: Mapping[str, float]) -> str:

@@ -29,6 +29,9 @@ from pbicrl.runs import constraint_set_of
 
 __all__ = ["group_mean_returns", "point_weights", "relation_error", "tune_margins", "MarginTuning", "DEFAULT_GAP_GRID"]
 
+COMPILING_NOTE = "first run: compiling the samplers if not cached"
+"""What the candidates' bar says until the first run ends (Numba compiles the samplers then, up to minutes)."""
+
 DEFAULT_GAP_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
 _MATRIX_MAX_GROUPS = 64  # MarginTuning.to_dict writes the K x K matrix up to this many groups (additive margins)
 
@@ -177,13 +180,15 @@ def tune_margins(
     nominal = dataset.nominal_weights if dataset.nominal_weights is not None else np.zeros(dataset.n_features)
     if infer_kwargs.get("nominal_weights") is not None:
         nominal = np.asarray(infer_kwargs["nominal_weights"], dtype=np.float64)
-    infer_kwargs.setdefault("progress", False)
+    # each run shows its own sampling bar under the candidates' (a run of the paper's settings takes ~90 s)
+    infer_kwargs.setdefault("progress", bool(progress))
     runner = run or (lambda m: infer(dataset, margins=m, **infer_kwargs))
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(cands), desc="tuning margins", unit="candidate", leave=False)
+        # the first run also compiles the samplers (Numba; minutes on a cold cache): say so, not a bare 0/N
+        bar = tqdm(total=len(cands), desc=f"tuning margins ({COMPILING_NOTE})", unit="candidate", leave=False)
     best: tuple[float, int] | None = None
     table: list[dict[str, Any]] = []
     posts: dict[int, Posterior] = {}
@@ -201,6 +206,8 @@ def tune_margins(
             best = (err, idx)
             posts[idx] = post
         if bar is not None:
+            if idx == 0:
+                bar.set_description("tuning margins")
             bar.update(1)
     if bar is not None:
         bar.close()

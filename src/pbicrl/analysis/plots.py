@@ -36,9 +36,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl._atomic import atomic_path
+from pbicrl.analysis import style as _style
 
 __all__ = ["plot_traces", "plot_posteriors", "plot_p_constraint", "plot_pairs", "plot_rewards", "plot_run",
-           "map_returns", "true_returns", "parse_truth", "check_truth", "FORMATS", "DEFAULT_DPI",
+           "map_returns", "estimate_returns", "true_returns", "parse_truth", "check_truth", "FORMATS", "DEFAULT_DPI",
            "PENALTY_UNIT", "STATE_UNIT", "REWARD_UNIT"]
 
 FORMATS = ("png", "pdf", "svg")
@@ -53,14 +54,13 @@ _MAX_SCATTER_POINTS = 4000
 _SLACK = 0.25  # a true value within 25% of the data span outside the range is taken into the axis
 _PAD = 0.05
 
-# Fonts sized for a figure shown at its natural width in a paper or a notebook (matplotlib's defaults
-# are 10 pt everywhere, and the figures used 7-8 pt ticks that became unreadable when shrunk).
-_RC = {"font.size": 10.0, "axes.titlesize": 10.5, "axes.labelsize": 10.0, "xtick.labelsize": 9.0,
-       "ytick.labelsize": 9.0, "legend.fontsize": 9.0, "figure.titlesize": 12.0, "axes.titlelocation": "center"}
-_TRUTH = "C3"
-_BOUND = "0.35"
-_ACTIVE = "C0"
-_ATOM = "0.8"
+# Fonts and colours of every pbicrl figure: pbicrl.analysis.style (one module for plot, reproduce and the page).
+_RC = _style.RC
+_TRUTH = _style.TRUTH
+_BOUND = _style.BOUND
+_ACTIVE = _style.ACTIVE
+_ATOM = _style.ATOM
+_MINPEN = "0.15"
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -88,10 +88,8 @@ def _styled(fn: _F) -> _F:
 
 
 def _colors(n: int) -> list:
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10"]
-    return [cmap(k % 10) for k in range(n)]
+    """Chain colours (:func:`pbicrl.analysis.style.chain_colours`)."""
+    return _style.chain_colours(n)
 
 
 # --------------------------------------------------------------------------------------------- run views
@@ -233,10 +231,10 @@ def _take_in(lim: tuple[float, float], values: Sequence[float | None]) -> tuple[
     for v in values:
         if v is None or not np.isfinite(v):
             continue
-        if lo - _SLACK * span <= v < lo:
-            lo = v - _PAD * span
-        elif hi < v <= hi + _SLACK * span:
-            hi = v + _PAD * span
+        if lo - _SLACK * span <= v < lo + _PAD * span:  # outside, or inside on the frame: room on that side
+            lo = min(lo, v - _PAD * span)
+        elif hi - _PAD * span < v <= hi + _SLACK * span:
+            hi = max(hi, v + _PAD * span)
     return lo, hi
 
 
@@ -279,6 +277,24 @@ def _mark_bounds(ax: Any, bounds: Sequence[float] | None, lim: tuple[float, floa
     return drawn
 
 
+def _identified_edge(post: Any, name: str) -> float | None:
+    r"""The penalty at the identified end of a feature's range: :math:`\pm` ``min_penalty`` on the side the data
+    bound (``identified.features[name].penalty_range``, the other end open); None when not one-sided."""
+    ident = getattr(post, "identified", None)
+    if callable(ident):
+        ident = ident()
+    e = ((ident or {}).get("features") or {}).get(name) if isinstance(ident, Mapping) else None
+    if not isinstance(e, Mapping):
+        return None
+    pr = e.get("penalty_range")
+    if not isinstance(pr, (list, tuple)) or len(pr) != 2:
+        return None
+    lo, hi = (None if v is None or not np.isfinite(v) else float(v) for v in pr)
+    if (lo is None) == (hi is None):
+        return None
+    return hi if lo is None else lo
+
+
 def _blank(ax: Any, text: str) -> None:
     """An axis that only says why it is empty."""
     ax.set_xticks([])
@@ -294,7 +310,8 @@ def _legend_handles(items: Sequence[tuple[str, str]]) -> list:
     style = {"active": lambda lab: Patch(color=_ACTIVE, alpha=0.5, label=lab),
              "atom": lambda lab: Patch(color=_ATOM, label=lab),
              "truth": lambda lab: Line2D([], [], color=_TRUTH, ls="--", lw=1.5, label=lab),
-             "bound": lambda lab: Line2D([], [], color=_BOUND, ls=":", lw=1.3, label=lab)}
+             "bound": lambda lab: Line2D([], [], color=_BOUND, ls=":", lw=1.3, label=lab),
+             "minpen": lambda lab: Line2D([], [], color=_MINPEN, ls="-.", lw=1.5, label=lab)}
     return [style[kind](label) for kind, label in items]
 
 
@@ -360,6 +377,7 @@ def plot_traces(post: Any, *, truth: Mapping[str, float] | None = None,
             _blank(ax, f"never active ({_p_label(_meaning(post), True)}=0)")
             hx.set_visible(False)
             continue
+        ax.set_ylabel(title.split("  ")[0] if r < len(rows) - 1 else "nats")
         for c in range(C):
             ax.plot(x, draws[c, ::step], lw=0.6, color=cols[c], alpha=0.85)
             sel = draws[c][np.isfinite(draws[c]) & (True if active is None else active[c])]
@@ -374,15 +392,20 @@ def plot_traces(post: Any, *, truth: Mapping[str, float] | None = None,
                 hx.axhline(tv, color=_TRUTH, ls="--", lw=1.5)
         any_bound |= _mark_bounds(ax, bounds, lim, axis="y")
         ax.margins(x=0.01)
-        # density values of a per-chain histogram carry no information worth a tick label (and they
-        # collided on wide-range rows); the panel title gives the share of draws it covers
-        hx.set_xticks([])
+        from matplotlib.ticker import MaxNLocator
+
+        hx.xaxis.set_major_locator(MaxNLocator(2))
         hx.tick_params(labelleft=False)
-        if active is not None and p_on < 1:
+        if active is not None:  # also at 1.00: the label said nothing when every draw was active
             hx.set_title(f"{_p_label(_meaning(post), True)} = {p_on:.2f}", fontsize=9)
     shown = [r for r in range(len(rows)) if rows[r][5] > 0]
+    for r in shown[:-1]:  # one draw axis for the traces, labelled once at the bottom
+        axes[r, 0].sharex(axes[shown[-1], 0])
+        axes[r, 0].tick_params(labelbottom=False)
     axes[shown[-1], 0].set_xlabel(_draw_axis_label(post))
-    axes[shown[-1], 1].set_xlabel("density\n(active draws)")
+    for r in shown:  # each density has its own scale: ticks and a label on every row
+        axes[r, 1].set_xlabel("density" if r != shown[-1] else "density\n(active draws)", fontsize=8.5)
+        axes[r, 1].tick_params(labelsize=8)
     from matplotlib.lines import Line2D
 
     handles = [Line2D([], [], color=cols[c], lw=1.5, label=f"chain {c}") for c in range(C)]
@@ -472,7 +495,7 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
     nrow, ncol = _grid(len(panels))
     fig = Figure(figsize=(5.0 * ncol, 3.7 * nrow + 0.8), layout="constrained")
     subs = np.asarray(fig.subfigures(nrow, ncol, squeeze=False)).ravel()
-    used = {"active": False, "atom": False, "truth": False, "bound": False}
+    used = {"active": False, "atom": False, "truth": False, "bound": False, "minpen": False}
     for sf, pn in zip(subs, panels):
         axb, axd = sf.subplots(1, 2, gridspec_kw={"width_ratios": [1, 7]})
         on_word = "c=1" if pn.is_penalty else "active"
@@ -510,6 +533,13 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
             _mark(axd, pn.truth, lim, axis="x", text="truth")
             used["truth"] = True
         used["bound"] |= _mark_bounds(axd, pn.bounds, lim, axis="x")
+        edge = _identified_edge(post, pn.name) if pn.is_penalty else None
+        if edge is not None and lim[0] <= edge <= lim[1]:
+            axd.axvline(edge, color=_MINPEN, ls="-.", lw=1.5, zorder=3)
+            used["minpen"] = True
+        elif edge is not None:
+            _mark(axd, edge, lim, axis="x", text="min|w_p|", color=_MINPEN, row=1)
+            used["minpen"] = True
         axd.set_xlabel(pn.xlabel)
         axd.set_ylabel("density | c=1" if pn.is_penalty else "density | active")
         from matplotlib.ticker import MaxNLocator
@@ -519,7 +549,8 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
         sf.set_visible(False)
     labels = {"active": ("active", "posterior density given active (integrates to 1)"),
               "atom": ("atom", "P(c=0): no penalty (atom at 0)"),
-              "truth": ("truth", "truth"), "bound": ("bound", "prior bound")}
+              "truth": ("truth", "truth"), "bound": ("bound", "prior bound"),
+              "minpen": ("minpen", "min|w_p|: smallest penalty the rankings require (identified)")}
     fig.legend(handles=_legend_handles([labels[k] for k, v in used.items() if v]), loc="outside lower center",
                ncol=4, frameon=False)
     fig.suptitle("Posterior: each penalty given its constraint is active, with "
@@ -579,6 +610,7 @@ def plot_p_constraint(post: Any, *, truth: Mapping[str, float] | None = None,
     ax.set_ylim(0, 1.12)
     ax.set_yticks([0, 0.25, 0.5, 0.75, 1])
     ax.set_ylabel("P(constraint | data)" if meaning == "posterior" else "frequency on in the chain")
+    ax.set_xlabel("feature")
     if meaning == "posterior":  # the selection threshold; a chain frequency selects nothing
         ax.axhline(0.5, color="k", lw=0.5, ls=":")
     from matplotlib.lines import Line2D
@@ -712,6 +744,16 @@ def _returns(post: Any, dataset: Any, effective: NDArray[np.float64],
     return np.hstack(feats) @ (wn + np.asarray(effective, dtype=np.float64))
 
 
+def estimate_returns(post: Any, dataset: Any, estimator: str = "selected") -> NDArray[np.float64]:
+    """Length-normalised return of every trajectory, (N,), under a point estimate
+    (:meth:`~pbicrl.inference.draws.DrawsView.point_estimate`; default the selected set at its conditional
+    medians, the estimate the labelling page and the reports use)."""
+    eff, theta = post.point_estimate(estimator)
+    if theta is not None and np.size(theta) and not np.all(np.isfinite(theta)):
+        theta = np.where(np.isfinite(theta), theta, 0.0)  # parameters of constraints that are off: weight 0
+    return _returns(post, dataset, np.nan_to_num(np.asarray(eff, dtype=np.float64)), theta)
+
+
 def map_returns(post: Any, dataset: Any) -> NDArray[np.float64]:
     """Length-normalised return :math:`\\bar r(\\tau_i)` of every trajectory under the MAP, (N,).
 
@@ -786,11 +828,12 @@ def _strip(ax: Any, data: Sequence[NDArray[np.float64]], positions: Sequence[flo
 @_styled
 def plot_rewards(post: Any, dataset: Any, *, truth: Mapping[str, float] | None = None,
                  units: Mapping[str, str] | None = None) -> Any:
-    """Distribution of the MAP length-normalised return per group.
+    """Distribution of the length-normalised return per group under the selected-set estimate (the selected
+    constraints at their conditional medians, as on the labelling page; :func:`estimate_returns`).
 
     Left: all groups on one scale (a good posterior orders them, group 1 highest). Right: each group on its own
     scale, so a tight group is a distribution and not a line. With a complete ``truth``, a bottom panel plots
-    the MAP return against the true return of every trajectory with Spearman's rank correlation: the true
+    the estimated return against the true return of every trajectory with Spearman's rank correlation: the true
     reward's ordering against the inferred one (an incomplete ``truth`` is named in the title instead).
 
     Parameters
@@ -807,25 +850,29 @@ def plot_rewards(post: Any, dataset: Any, *, truth: Mapping[str, float] | None =
     """
     Figure = _mpl()
     U = _units(post, units)
-    r = map_returns(post, dataset)
+    r = estimate_returns(post, dataset, "selected")
     labels = list(dataset.group_labels)
     K = len(labels)
     data = [r[dataset.group == g] for g in labels]
-    cols = _colors(K)
+    cols = _style.group_colours(K)  # best green ... worst red, as on the labelling page
+    gname = {g: (dataset.group_name(g) if dataset.group_names else f"G{g}") for g in labels}
     rt, missing = true_returns(post, dataset, truth) if truth else (None, [])
     fig = Figure(figsize=(max(8.0, 2.0 * K + 5.0), 4.4 + (4.0 if rt is not None else 0.0)), layout="constrained")
     gs = fig.add_gridspec(2 if rt is not None else 1, K + 2)
     rng = np.random.default_rng(0)  # jitter only
     ax = fig.add_subplot(gs[0, :2])
     _strip(ax, data, np.arange(K), rng, cols)
-    ax.set_xticks(np.arange(K), [f"G{g}\n(n={x.size})" for g, x in zip(labels, data)])
-    ax.set_ylabel(f"MAP reward per step ({U.reward})")
+    ax.set_xticks(np.arange(K), [f"{gname[g]}\n(n={x.size})" for g, x in zip(labels, data)])
+    ax.set_ylabel(f"reward per step ({U.reward})")
+    ax.set_xlabel("group (best first)")
     ax.set_title("all groups, one scale")
     for k, (g, x) in enumerate(zip(labels, data)):
         zx = fig.add_subplot(gs[0, 2 + k])
         _strip(zx, [x], [0], rng, [cols[k]])
-        zx.set_xticks([0], [f"G{g}"])
-        zx.set_title(f"G{g} (n={x.size}), own scale", fontsize=9.5)
+        zx.set_xticks([0], [gname[g]])
+        zx.set_xlabel("group")
+        zx.set_title(f"{gname[g]} (n={x.size}),\nown scale", fontsize=9.5)
+        zx.set_ylabel("reward per step", fontsize=8.5)
         if x.size and np.ptp(x) == 0:
             zx.text(0.5, 0.02, "all equal", ha="center", va="bottom", transform=zx.transAxes, fontsize=8.5)
         from matplotlib.ticker import MaxNLocator
@@ -835,16 +882,17 @@ def plot_rewards(post: Any, dataset: Any, *, truth: Mapping[str, float] | None =
         sx = fig.add_subplot(gs[1, :])
         for k, g in enumerate(labels):
             m = dataset.group == g
-            sx.plot(rt[m], r[m], ".", ms=4, alpha=0.5, color=cols[k], label=f"G{g}", rasterized=True)
+            sx.plot(rt[m], r[m], ".", ms=4, alpha=0.5, color=cols[k], label=gname[g], rasterized=True)
             # open diamonds: a filled one hid a tight group's trajectories under it
             sx.plot([rt[m].mean()], [r[m].mean()], "D", ms=10, mfc="none", mec="k", mew=1.8, zorder=5)
         sx.set_xlabel(f"true reward per step ({U.reward})")
-        sx.set_ylabel(f"MAP reward per step ({U.reward})")
-        means = " > ".join(f"G{g}" for g in sorted(labels, key=lambda g: -rt[dataset.group == g].mean()))
-        sx.set_title(f"MAP vs true reward per trajectory (open diamonds: group means): Spearman \u03c1 = "
+        sx.set_ylabel(f"estimated reward per step ({U.reward})")
+        means = " > ".join(gname[g] for g in sorted(labels, key=lambda g: -rt[dataset.group == g].mean()))
+        sx.set_title(f"estimated vs true reward per trajectory (open diamonds: group means): Spearman \u03c1 = "
                      f"{_spearman(rt, r):.3f}; true order of group means {means}")
         sx.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False, markerscale=2)  # off the data
-    title = "Reward per step of each trajectory under the MAP, by group (1 = best)"
+    title = ("Reward per step of each trajectory by group (best first), under the selected set at its "
+             "conditional medians")
     if truth and rt is None:
         title += f"\n(true reward not drawn: --truth lacks {', '.join(missing)})"
     fig.suptitle(title)

@@ -59,7 +59,8 @@ from numpy.typing import ArrayLike, NDArray
 from pbicrl.inference.likelihood_kernels import group_term
 from pbicrl.inference.data import Dataset, DatasetError
 
-__all__ = ["Suggestion", "Suggestions", "group_probabilities", "information_gain", "suggest", "suggest_run",
+__all__ = ["Suggestion", "Suggestions", "already_labelled", "group_probabilities", "information_gain", "suggest",
+           "suggest_run",
            "TARGETS", "Z_LOW", "Z_HIGH", "Z_STEP"]
 
 TARGETS = ("indicators", "selected")
@@ -373,6 +374,9 @@ class Suggestions:
         Candidates scored.
     n_draws : int
         Posterior draws used.
+    already_labelled : tuple of int
+        Pool indices left out because the same demonstration (same features, state by state) is already in the
+        labelled data: ranking it again would tell nothing new.
     """
 
     ranking: tuple[Suggestion, ...]
@@ -380,6 +384,7 @@ class Suggestions:
     groups: tuple[str, ...]
     n_candidates: int
     n_draws: int
+    already_labelled: tuple[int, ...] = ()
 
     @property
     def indices(self) -> list[int]:
@@ -387,9 +392,10 @@ class Suggestions:
         return [s.index for s in self.ranking]
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready: ``target``, ``groups``, ``n_candidates``, ``n_draws``, ``unit`` and ``suggestions``."""
+        """JSON-ready: ``target``, ``groups``, ``n_candidates``, ``n_draws``, ``unit``, ``already_labelled`` and
+        ``suggestions``."""
         return {"target": self.target, "groups": list(self.groups), "n_candidates": self.n_candidates,
-                "n_draws": self.n_draws, "unit": "nats",
+                "n_draws": self.n_draws, "unit": "nats", "already_labelled": list(self.already_labelled),
                 "suggestions": [{"index": s.index, "information_gain": s.information_gain,
                                  "group_probabilities": dict(zip(self.groups, s.group_probabilities))}
                                 for s in self.ranking]}
@@ -403,7 +409,33 @@ class Suggestions:
                         + "  ".join(f"{p:>10.3f}" for p in s.group_probabilities))
         rows.append(f"{self.n_candidates} candidates scored with {self.n_draws} posterior draws "
                     f"(target: {self.target}); columns: predicted P(group)")
+        if self.already_labelled:
+            shown = ", ".join(str(i) for i in self.already_labelled[:10]) + (", ..." if len(self.already_labelled) > 10
+                                                                               else "")
+            rows.append(f"left out {len(self.already_labelled)} pool trajectories already in the labelled data "
+                        f"(by content): {shown}")
         return "\n".join(rows)
+
+
+def _trajectory_keys(ds: Dataset, which: NDArray[np.int64]) -> list[bytes]:
+    """A key per trajectory from its per-state features (length and values), to find the same demonstration in two
+    datasets whatever its index."""
+    import hashlib
+
+    out = []
+    for i in which.tolist():
+        f = np.ascontiguousarray(ds.features[ds.offsets[i]:ds.offsets[i + 1]], dtype=np.float64)
+        out.append(hashlib.sha1(f.tobytes() + f.shape[0].to_bytes(8, "little")).digest())
+    return out
+
+
+def already_labelled(pool: Dataset, candidates: ArrayLike, labelled: Dataset) -> NDArray[np.bool_]:
+    """For each pool index in ``candidates``: whether the same demonstration (identical per-state features) is a
+    labelled trajectory (group >= 1) of ``labelled``."""
+    idx = np.asarray(candidates, dtype=np.int64).reshape(-1)
+    lab = np.flatnonzero(np.asarray(labelled.group) >= 1)
+    known = set(_trajectory_keys(labelled, lab))
+    return np.array([k in known for k in _trajectory_keys(pool, idx)], dtype=bool)
 
 
 def _pick_draws(n_total: int, max_draws: int) -> NDArray[np.int64]:
@@ -439,7 +471,9 @@ def suggest(
     n : int
         How many to return.
     candidates : sequence of int, optional
-        Pool indices to score; default: the pool's unlabelled (group 0), not skipped trajectories.
+        Pool indices to score; default: the pool's unlabelled (group 0), not skipped trajectories. Either way a
+        candidate that is already a labelled trajectory of ``labelled`` (matched by content, not index) is left
+        out and listed in :attr:`Suggestions.already_labelled`.
     target : {"indicators", "selected"}
         See :func:`information_gain`.
     max_draws : int
@@ -478,6 +512,13 @@ def suggest(
             raise ValueError("candidates: empty")
         if idx.min() < 0 or idx.max() >= pool.n_trajectories:
             raise ValueError(f"candidates: indices must lie in [0, {pool.n_trajectories})")
+    # the pool may hold demonstrations the run was inferred from (a pool drawn from the same data): never suggest them
+    known = already_labelled(pool, idx, labelled)
+    left_out = tuple(int(i) for i in idx[known])
+    idx = idx[~known]
+    if idx.size == 0:
+        raise DatasetError(f"group: all {len(left_out)} candidate pool trajectories are already labelled in the run's "
+                           "data (the same features, state by state); there is nothing new to suggest")
     settings = dict(getattr(posterior, "settings", None) or {})
     if beta is None:
         beta = float(settings.get("beta", 1.0) or 1.0)
@@ -507,7 +548,7 @@ def suggest(
     pbar = P.mean(axis=0)
     ranking = tuple(Suggestion(int(idx[o]), float(gain[o]), tuple(float(p) for p in pbar[o])) for o in order)
     groups = tuple(data.group_name(k) for k in data.group_labels.tolist())
-    return Suggestions(ranking, str(target), groups, int(idx.size), int(pick.size))
+    return Suggestions(ranking, str(target), groups, int(idx.size), int(pick.size), left_out)
 
 
 def suggest_run(

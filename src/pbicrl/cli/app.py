@@ -230,9 +230,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
     else:
-        print(res.table())
-        for w in res.warnings():
-            print(f"warning: {w}", file=sys.stderr)
+        print(res.table())  # its warning lines, once (they used to be printed again on stderr)
     return 0
 
 
@@ -382,7 +380,7 @@ def build_parser() -> argparse.ArgumentParser:
 _EXTENSIONS: dict[str, tuple[str, ...]] = {
     "pbicrl.cli.sweep": ("sweep",), "pbicrl.cli.reproduce": ("reproduce",),
     "pbicrl.cli.posterior": ("diagnose", "plot", "export", "import"), "pbicrl.cli.envs": ("envs",),
-    "pbicrl.cli.train_safe": ("train-safe",), "pbicrl.cli.label": ("label", "suggest"),
+    "pbicrl.cli.train_safe": ("train-safe",), "pbicrl.cli.label": ("label", "pool", "suggest"),
 }
 
 # Top-level modules of optional dependencies -> the extra that installs them (pyproject.toml).

@@ -1,4 +1,5 @@
-"""Subcommands ``pbicrl label`` (the labelling web app) and ``pbicrl suggest`` (what to label next).
+"""Subcommands ``pbicrl label`` (the labelling web app), ``pbicrl pool`` (demonstrations to label, from any dataset)
+and ``pbicrl suggest`` (what to label next).
 
 Registered by :mod:`pbicrl.cli` through ``add_subcommands``; nothing optional is imported until a command runs.
 """
@@ -20,7 +21,7 @@ __all__ = ["add_subcommands", "check_port"]
 
 
 def add_subcommands(sub: Any) -> None:
-    """Add ``label`` and ``suggest`` to the ``pbicrl`` subparsers."""
+    """Add ``label``, ``pool`` and ``suggest`` to the ``pbicrl`` subparsers."""
     p = sub.add_parser("label", help="rank demonstrations in the browser (needs pbicrl[ui])",
                        description="Start a local web app that shows each demonstration, lets you sort them into "
                                    "ranked groups (drag, or keys 1-9), skip some, state the gap relation, and run "
@@ -35,6 +36,17 @@ def add_subcommands(sub: Any) -> None:
                    help="instead of serving: write DATA's labelled trajectories (skipped and unlabelled ones "
                         "dropped) to FILE, a dataset that 'pbicrl infer' reads, and exit")
     p.set_defaults(func=_cmd_label)
+
+    q = sub.add_parser("pool", help="an unlabelled pool for 'pbicrl label' from a dataset (yours or a shipped one)",
+                       description="Draw --n demonstrations from DATA without replacement (all without --n), set "
+                                   "every group to 0 (unlabelled) and write them to --out. States, features and the "
+                                   "environment (env_id) are kept, so 'pbicrl label' draws the goal and regions.")
+    q.add_argument("data", type=Path, help="dataset .npz or a shipped name (e.g. point_mass)")
+    q.add_argument("--n", type=_positive_int, help="how many demonstrations (default: all)")
+    q.add_argument("--seed", type=int, default=0, help="seed of the draw (default 0)")
+    q.add_argument("--out", type=Path, required=True, help="the pool (.npz)")
+    q.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    q.set_defaults(func=_cmd_pool)
 
     s = sub.add_parser("suggest", help="which unlabelled demonstrations to label next (active query selection)",
                        description="Rank the pool's unlabelled demonstrations by the expected information their "
@@ -114,6 +126,23 @@ def _cmd_label(args: argparse.Namespace) -> int:
 
         threading.Timer(1.0, lambda: webbrowser.open(url)).start()
     uvicorn.run(app, host=args.host, port=port, log_level="warning")
+    return 0
+
+
+def _cmd_pool(args: argparse.Namespace) -> int:
+    from pbicrl.inference.data import load_dataset, resolve_dataset_path
+
+    if args.out.suffix != ".npz":
+        raise ValueError(f"out: {args.out}: expected a file name ending in .npz")
+    src = resolve_dataset_path(args.data)
+    if args.out.exists() and args.out.resolve() == src.resolve():
+        raise FileExistsError(f"out: {args.out} is the input dataset; choose another file")
+    if args.out.exists() and not args.overwrite:
+        raise FileExistsError(f"out: {args.out} already exists; choose another file or pass --overwrite")
+    pool = load_dataset(src, allow_unlabelled=True).as_pool(args.n, seed=args.seed)
+    path = pool.save(args.out, overwrite=args.overwrite)
+    env = f"env_id {pool.env_id!r}" if pool.env_id else "no env_id (pass --env ENV to 'pbicrl label')"
+    print(f"wrote {path}: {pool.n_trajectories} unlabelled demonstrations from {src.name}, {env}")
     return 0
 
 

@@ -121,7 +121,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     try:
         path = to_netcdf(run, out, overwrite=args.overwrite,
                          dataset=resolve_dataset_path(args.data) if args.data else None,
-                         pointwise=False if args.no_pointwise else "auto", pointwise_draws=args.pointwise_draws)
+                         pointwise=not args.no_pointwise, pointwise_draws=args.pointwise_draws)
     except OutputExistsError as exc:  # worded for Python (overwrite=True); here the flag is --overwrite
         raise FileExistsError(f"--netcdf: {exc.path} already exists; choose another file or pass --overwrite") from None
     print(f"wrote {path}")
@@ -221,7 +221,7 @@ def add_subcommands(sub: Any) -> None:
                        description="Write the posterior as ArviZ InferenceData (arviz < 1) or DataTree (arviz >= 1) "
                                    "in NetCDF: posterior indicator, penalty (c*w_p; penalty_weight for the paper "
                                    "sampler only), parameter; log_likelihood = each trajectory's share, for az.loo; "
-                                   "sample_stats = total log-likelihood, lp, log_prior, per-draw move and "
+                                   "sample_stats = total_log_likelihood, lp, log_prior, per-draw move and "
                                    "acceptance.")
     p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
     p.add_argument("--netcdf", type=Path, help="output .nc file (default RUN_DIR/posterior.nc)")

@@ -15,7 +15,6 @@ from pbicrl.inference.data import Dataset
 __all__ = ["plot_navigation_demos"]
 
 
-_GROUP_COLOURS = {1: "tab:green", 2: "tab:orange", 3: "tab:red"}
 
 
 def plot_navigation_demos(dataset: Dataset | str | os.PathLike, env: str, out: str | os.PathLike,
@@ -58,52 +57,78 @@ def plot_navigation_demos(dataset: Dataset | str | os.PathLike, env: str, out: s
         keep = np.concatenate(picks)
         ds = ds.subset(keep)
         letters = None if letters is None else letters[keep]
-    if env == "point_mass":
-        from pbicrl.envs.point_mass import HIGH, LOW
-        from pbicrl.envs.point_mass import POINT_MASS_TASK as task
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
-        fig, ax = plt.subplots(figsize=(5, 5))
-        axes = [(ax, 0, 1)]
-        ax.set_xlim(LOW, HIGH)
-        ax.set_ylim(LOW, HIGH)
-        for reg, col in ((task.goal, "tab:blue"), (task.orange, "orange"), (task.red, "red")):
-            ax.add_patch(Circle(reg.centre, reg.radius, color=col, alpha=0.3))
-    else:
-        from pbicrl.envs.fetch_reach import FETCH_REACH_TASK as task
+    from pbicrl.analysis import style
 
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.5))
-        axes = [(a1, 0, 1), (a2, 0, 2)]
-        for ax, i, j in axes:
-            for box, col in ((task.orange, "orange"), (task.red, "red")):
-                ax.add_patch(Rectangle((box.low[i], box.low[j]), box.high[i] - box.low[i],
-                                       box.high[j] - box.low[j], color=col, alpha=0.3))
-            ax.add_patch(Circle((task.goal.centre[i], task.goal.centre[j]), task.goal.radius, color="tab:blue", alpha=0.4))
-        a1.set_title("top view")
-        a2.set_title("side view")
-        a2.set_ylim(0.4, 1.0)
-    names = "xyz"
-    for k in ds.group_labels:
-        idx = np.flatnonzero(ds.group == k)
-        n_good = 0 if letters is None else int((letters[idx] == "g").sum())
-        label = f"G{k} ({idx.size} shown" + (f", {n_good} good policy, dashed)" if n_good else ")")
-        for n, i in enumerate(idx):
-            s = ds.trajectory_states(int(i))
-            good = letters is not None and letters[i] == "g"
-            for ax, a, b in axes:
-                ax.plot(s[:, a], s[:, b], color=_GROUP_COLOURS.get(int(k), "grey"), lw=1.2 if good else 0.8,
-                        alpha=0.9 if good else 0.6, ls="--" if good else "-",
-                        label=label if n == 0 and ax is axes[0][0] else None)
-                ax.plot(s[0, a], s[0, b], ".", color="black", ms=2)
-    for ax, a, b in axes:
-        ax.set_xlabel(names[a])
-        ax.set_ylabel(names[b])
-        ax.set_aspect("equal", adjustable="box")
-    # the point mass's middle is free of trajectories; Fetch's top view is free at low x
-    axes[0][0].legend(loc="center" if env == "point_mass" else "lower left", fontsize=8)
-    fig.suptitle(title or f"{env} demonstrations by group")
-    fig.tight_layout()
-    out = Path(out)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    with style.rc():  # the house fonts for this figure only, not the caller's rcParams
+        region_handles = []
+        if env == "point_mass":
+            from pbicrl.envs.point_mass import HIGH, LOW
+            from pbicrl.envs.point_mass import POINT_MASS_TASK as task
+
+            fig, ax = plt.subplots(figsize=(7.2, 5), layout="constrained")
+            axes = [(ax, 0, 1)]
+            ax.set_xlim(LOW, HIGH)
+            ax.set_ylim(LOW, HIGH)
+            for name, reg in (("goal", task.goal), ("orange", task.orange), ("red", task.red)):
+                col = style.REGION_COLOURS[name]
+                ax.add_patch(Circle(reg.centre, reg.radius, facecolor=col, edgecolor=col, alpha=0.3, lw=1.5))
+                region_handles.append(Patch(facecolor=col, edgecolor=col, alpha=0.45, label=f"{name} region"))
+        else:
+            from pbicrl.envs.fetch_reach import FETCH_REACH_TASK as task
+
+            fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.8), layout="constrained")
+            axes = [(a1, 0, 1), (a2, 0, 2)]
+            # outlines and hatching keep the two boxes apart where one hides the other (the side view)
+            for name, box, hatch in (("orange", task.orange, "//"), ("red", task.red, "\\\\")):
+                col = style.REGION_COLOURS[name]
+                for ax, i, j in axes:
+                    ax.add_patch(Rectangle((box.low[i], box.low[j]), box.high[i] - box.low[i], box.high[j] - box.low[j],
+                                           facecolor=col, edgecolor=col, alpha=0.25, lw=1.8, hatch=hatch))
+                    ax.add_patch(Rectangle((box.low[i], box.low[j]), box.high[i] - box.low[i], box.high[j] - box.low[j],
+                                           fill=False, edgecolor=col, lw=1.8))
+                region_handles.append(Patch(facecolor=col, edgecolor=col, alpha=0.45, hatch=hatch, label=f"{name} box"))
+            goal = style.REGION_COLOURS["goal"]
+            for ax, i, j in axes:
+                ax.add_patch(Circle((task.goal.centre[i], task.goal.centre[j]), task.goal.radius, facecolor=goal,
+                                    edgecolor=goal, alpha=0.4, lw=1.5))
+            region_handles.append(Patch(facecolor=goal, edgecolor=goal, alpha=0.45, label="goal ball"))
+            a1.set_title("top view (x-y)")
+            a2.set_title("side view (x-z)")
+            a2.set_ylim(0.4, 1.0)
+            if all(np.allclose([task.orange.low[i], task.orange.high[i]], [task.red.low[i], task.red.high[i]])
+                   for i in (0, 2)):
+                a2.text(0.02, 0.03, "the orange and red boxes coincide in this view\n(they differ in y: top view)",
+                        transform=a2.transAxes, fontsize=8.5, color="0.25", va="bottom")
+        names = "xyz"
+        colours = dict(zip(ds.group_labels.tolist(), style.group_colours(len(ds.group_labels))))
+        group_handles = []
+        for k in ds.group_labels:
+            idx = np.flatnonzero(ds.group == k)
+            n_good = 0 if letters is None else int((letters[idx] == "g").sum())
+            label = (f"{ds.group_name(int(k)) if ds.group_names else f'G{k}'} ({idx.size} shown"
+                     + (f", {n_good} good policy, dashed)" if n_good else ")"))
+            group_handles.append(Line2D([], [], color=colours[int(k)], lw=1.5, label=label))
+            for i in idx:
+                s = ds.trajectory_states(int(i))
+                good = letters is not None and letters[i] == "g"
+                for ax, a, b in axes:
+                    ax.plot(s[:, a], s[:, b], color=colours[int(k)], lw=1.2 if good else 0.8,
+                            alpha=0.9 if good else 0.6, ls="--" if good else "-")
+                    ax.plot(s[0, a], s[0, b], ".", color="black", ms=2)
+        group_handles.append(Line2D([], [], color="black", marker=".", ls="none", ms=5, label="start"))
+        unit = " (m)" if env == "fetch_reach" else " (arena units)"
+        for ax, a, b in axes:
+            ax.set_xlabel(names[a] + unit)
+            ax.set_ylabel(names[b] + unit)
+            ax.set_aspect("equal", adjustable="box")
+        # beside the data, never on it: groups (best first), then the regions
+        style.legend_outside(fig, group_handles + region_handles, where="right")
+        fig.suptitle(title or f"{env} demonstrations by group")
+        out = Path(out)
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, dpi=120)
+        plt.close(fig)
     return out

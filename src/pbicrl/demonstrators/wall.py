@@ -291,21 +291,24 @@ def plot_wall_visitation(dataset: Any, wall_x: float, out_png: str | os.PathLike
     row_group = np.repeat(ds.group, np.diff(ds.offsets))
     edges = np.linspace(min(x.min(), 0.0), max(x.max(), wall_x) + 1e-9, int(bins) + 1)
     names = {1: "good (G1)", 2: "violating (G2)"}
-    fig, ax = plt.subplots(figsize=(6, 3.2))
-    for g in groups:
-        xs = x[row_group == g]
-        if xs.size == 0:
-            continue
-        h, _ = np.histogram(xs, bins=edges)
-        ax.stairs(h / xs.size, edges, fill=True, alpha=0.5,
-                  label=f"{names.get(g, f'group {g}')}, n={int(np.sum(ds.group == g))}")
-    ax.axvline(wall_x, color="k", ls="--", lw=1, label=f"wall x = {wall_x:g}")
-    ax.set_xlabel("x position")
-    ax.set_ylabel("visitation frequency")
-    if title:
-        ax.set_title(title)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    from pbicrl.analysis import style
+
+    colours = dict(zip(ds.group_labels.tolist(), style.group_colours(len(ds.group_labels))))
+    with style.rc():
+        fig, ax = plt.subplots(figsize=(8.2, 3.4), layout="constrained")
+        for g in groups:
+            xs = x[row_group == g]
+            if xs.size == 0:
+                continue
+            h, _ = np.histogram(xs, bins=edges)
+            ax.stairs(h / xs.size, edges, fill=True, alpha=0.5, color=colours.get(g, "0.5"),
+                      label=f"{names.get(g, f'group {g}')}, n={int(np.sum(ds.group == g))}")
+        ax.axvline(wall_x, color=style.REGION_COLOURS["wall"], ls="--", lw=1.2, label=f"wall x = {wall_x:g}")
+        ax.set_xlabel("x position (m)")
+        ax.set_ylabel("visitation frequency\n(fraction of a group's states)")
+        if title:
+            ax.set_title(title)
+        style.legend_outside(ax)
     out_png = Path(out_png)
     with atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=120)

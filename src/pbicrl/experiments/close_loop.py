@@ -288,36 +288,48 @@ def plot(results: dict[str, Any], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    from pbicrl.analysis import style
 
     envs = list(results["envs"])
-    fig, axes = plt.subplots(len(envs), 3, figsize=(12, 3.0 * len(envs)), squeeze=False)
-    colours = {"nominal": "tab:grey", "true": "tab:green", "inferred": "tab:blue", "inferred-probability": "tab:purple"}
-    for row, env in zip(axes, envs):
-        r = results["envs"][env]
-        pols = r["policies"]
-        wall = all("max_x" in e for p in pols.values() for e in p["per_seed"])
-        third = ("max_x", "furthest x in an episode") if wall else ("mean_steps", "episode length (steps)")
-        for ax, (key, label) in zip(row, (("violation_rate", "violation rate (fraction of steps)"),
-                                          ("true_return", "true return"), third)):
-            for i, (kind, p) in enumerate(pols.items()):
-                vals = [e[key] for e in p["per_seed"]]
-                ax.bar(i, np.mean(vals), color=colours.get(kind, "tab:orange"), alpha=0.7)
-                ax.scatter(np.full(len(vals), i), vals, color="black", s=12, zorder=3)
-            ax.set_xticks(range(len(pols)), list(pols), fontsize=7)
-            ax.set_ylabel(label, fontsize=8)
-            ax.set_title(f"{env} ({len(next(iter(pols.values()))['per_seed'])} seed(s))", fontsize=9)
-        if wall:
-            from pbicrl.envs.mujoco_wall import WALL_SPECS
+    colours = {"nominal": "0.55", "true": style.GROUP_GOOD, "inferred": style.ACTIVE, "inferred-probability": "#7e57c2"}
+    with style.rc():
+        fig, axes = plt.subplots(len(envs), 3, figsize=(13, 3.3 * len(envs)), squeeze=False, layout="constrained")
+        for row, env in zip(axes, envs):
+            r = results["envs"][env]
+            pols = r["policies"]
+            n_seeds = len(next(iter(pols.values()))["per_seed"])
+            wall = all("max_x" in e for p in pols.values() for e in p["per_seed"])
+            third = ("max_x", "furthest x in an episode (m)") if wall else ("mean_steps", "episode length (steps)")
+            for ax, (key, label) in zip(row, (("violation_rate", "violation rate\n(fraction of steps)"),
+                                              ("true_return", "true return (reward units)"), third)):
+                for i, (kind, p) in enumerate(pols.items()):
+                    vals = [e[key] for e in p["per_seed"]]
+                    ax.bar(i, np.mean(vals), color=colours.get(kind, "tab:orange"), alpha=0.75)
+                    ax.scatter(np.full(len(vals), i), vals, color="black", s=12, zorder=3)
+                # short tick names, one per policy: "inferred-probability" crowded its neighbours
+                ax.set_xticks(range(len(pols)), [k.replace("inferred-probability", "inferred\n(P-weighted)")
+                                                 for k in pols])
+                ax.set_xlabel("policy")
+                ax.set_ylabel(label)
+                ax.set_title(f"{env} ({n_seeds} seed{'s' if n_seeds != 1 else ''})")
+            if wall:
+                from pbicrl.envs.mujoco_wall import WALL_SPECS
 
-            ax = row[2]
-            ax.axhline(WALL_SPECS[env].wall_x, color="tab:red", lw=1, label="true wall")
-            med = r["posterior"]["parameters"].get("wall.threshold", {}).get("median")
-            if med is not None:
-                ax.axhline(med, color="tab:blue", lw=1, ls="--", label="posterior median wall")
-            ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+                ax = row[2]
+                ax.axhline(WALL_SPECS[env].wall_x, color=style.REGION_COLOURS["wall"], lw=1.2)
+                med = r["posterior"]["parameters"].get("wall.threshold", {}).get("median")
+                if med is not None:
+                    ax.axhline(med, color=style.ACTIVE, lw=1.2, ls="--")
+        handles = [Patch(color="0.7", label="bar: mean over seeds"),
+                   Line2D([], [], color="black", marker="o", ls="none", ms=4, label="dot: one seed"),
+                   Line2D([], [], color=style.REGION_COLOURS["wall"], lw=1.2, label="true wall"),
+                   Line2D([], [], color=style.ACTIVE, lw=1.2, ls="--", label="posterior median wall")]
+        fig.legend(handles=handles, loc="outside right center", frameon=False)
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
 
 
 def plot_paths(paths: dict[str, list[np.ndarray]], path: Path, seed: int) -> None:
@@ -328,21 +340,30 @@ def plot_paths(paths: dict[str, list[np.ndarray]], path: Path, seed: int) -> Non
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle
 
+    from matplotlib.patches import Patch
+
+    from pbicrl.analysis import style
     from pbicrl.envs.point_mass import HIGH, LOW, POINT_MASS_TASK as task
 
-    fig, axes = plt.subplots(1, len(paths), figsize=(3.2 * len(paths), 3.3), squeeze=False)
-    for ax, (kind, ps) in zip(axes[0], paths.items()):
-        for disc, colour in ((task.orange, "orange"), (task.red, "red"), (task.goal, "limegreen")):
-            ax.add_patch(Circle(disc.centre, disc.radius, color=colour, alpha=0.35))
-        for p in ps:
-            ax.plot(p[:, 0], p[:, 1], "-", color="black", lw=0.7, alpha=0.6)
-        ax.set_xlim(LOW, HIGH)
-        ax.set_ylim(LOW, HIGH)
-        ax.set_aspect("equal")
-        ax.set_title(f"{kind} (seed {seed})", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    with style.rc():
+        fig, axes = plt.subplots(1, len(paths), figsize=(3.4 * len(paths) + 1.8, 3.6), squeeze=False,
+                                 layout="constrained")
+        for ax, (kind, ps) in zip(axes[0], paths.items()):
+            for name, disc in (("orange", task.orange), ("red", task.red), ("goal", task.goal)):
+                ax.add_patch(Circle(disc.centre, disc.radius, color=style.REGION_COLOURS[name], alpha=0.35))
+            for p in ps:
+                ax.plot(p[:, 0], p[:, 1], "-", color="black", lw=0.7, alpha=0.6)
+            ax.set_xlim(LOW, HIGH)
+            ax.set_ylim(LOW, HIGH)
+            ax.set_aspect("equal")
+            ax.set_xlabel("x (arena units)")
+            ax.set_ylabel("y (arena units)")
+            ax.set_title(f"{kind} policy (seed {seed})")
+        handles = [Patch(color=style.REGION_COLOURS[n], alpha=0.5, label=f"{n} region") for n in ("goal", "orange", "red")]
+        fig.legend(handles=handles + [plt.Line2D([], [], color="black", lw=0.8, label="evaluation episode")],
+                   loc="outside right center", frameon=False)
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
 
 
 __getattr__ = moved_to_cli(__name__, {"main": "pbicrl.cli.close_loop"})  # the command line moved

@@ -279,6 +279,11 @@ def run_tasks(
                 _note_stale(group[0].task, root, progress)
 
     bar = _bar(len(by_hash), len(by_hash) - len(todo), progress)
+    if bar is not None and todo:  # nothing finishes while the workers compile the samplers: say so
+        from pbicrl.analysis.margins import COMPILING_NOTE
+
+        bar.set_description(f"sweep ({COMPILING_NOTE})")
+    first = True
     t0 = time.perf_counter()
     last_save = 0.0
     n_failed = 0
@@ -300,6 +305,9 @@ def run_tasks(
                 else:
                     print(msg, file=sys.stderr)
             if bar is not None:
+                if first:
+                    bar.set_description("sweep")
+                    first = False
                 bar.update(1)
                 if n_failed:
                     bar.set_postfix(failed=n_failed, refresh=False)

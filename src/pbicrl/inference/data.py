@@ -60,7 +60,7 @@ from pbicrl._atomic import clean_stale_temporaries, temporary_prefix, umask
 __all__ = [
     "Dataset", "DatasetError", "DatasetNotFoundError", "load_dataset", "resolve_dataset_path",
     "list_shipped_datasets", "ArrayHeader", "inspect_npz", "memory_limit_bytes", "clean_stale_temporaries",
-    "temporary_prefix", "MAX_GROUPS", "file_kind", "format_bytes", "shipped_dir",
+    "temporary_prefix", "MAX_GROUPS", "file_kind", "format_bytes", "shipped_dir", "SHIPPED_ENV_IDS",
 ]
 
 MAX_GROUPS = 1000
@@ -69,6 +69,11 @@ as K offsets (nothing K x K) and run on 20,000 single-trajectory groups; what st
 pairwise likelihood with sampled pairs (``pairs=n``: n pairs for each of the K(K-1)/2 group pairs, drawn in a
 loop over them), a general K x K margin matrix, and ``suggest`` (O(M K^2) time per draw for M candidates). The
 cap stays until those check their own sizes."""
+
+SHIPPED_ENV_IDS = {"point_mass": "point_mass", "fetch_reach": "fetch_reach", "grid": "grid",
+                   "halfcheetah": "halfcheetah", "ant": "ant"}
+"""The environment of each shipped dataset (``example`` is synthetic: none); :meth:`Dataset.load` sets it, so a
+shipped dataset and a pool made from it (:meth:`Dataset.as_pool`) are drawn with their goal and regions."""
 
 _FIELDS = ("features", "offsets", "group", "states", "actions", "feature_names", "nominal_weights", "group_names",
            "gap_relation", "skipped", "env_id")
@@ -891,6 +896,28 @@ class Dataset:
             allow_unlabelled=self.allow_unlabelled and not strict,
         )
 
+    def as_pool(self, n: int | None = None, *, seed: int | np.random.Generator = 0) -> "Dataset":
+        """An unlabelled pool for ``pbicrl label``: ``n`` trajectories drawn without replacement (all of them when
+        ``n`` is None or at least the number of trajectories), every group set to 0 (unlabelled).
+
+        States, actions, features, nominal weights and ``env_id`` are kept (so the labelling page draws the
+        environment: goal, regions, walls); group names, the gap relation and skips are not. ``pbicrl pool DATA
+        --n 40 --out pool.npz`` on the command line.
+
+        Raises
+        ------
+        DatasetError
+            ``n`` is not a positive integer.
+        """
+        N = self.n_trajectories
+        if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
+            raise DatasetError(f"n: expected a positive number of trajectories, got {n!r}")
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        idx = np.arange(N) if n is None or n >= N else np.sort(rng.choice(N, size=int(n), replace=False))
+        part = self._take(idx, strict=True)
+        return Dataset(part.features, part.offsets, np.zeros(idx.size, dtype=np.int64), part.states, part.actions,
+                       part.feature_names, part.nominal_weights, env_id=part.env_id, allow_unlabelled=True)
+
     def sample_per_group(self, n: int, seed: int | np.random.Generator | None = 0) -> "Dataset":
         """Draw ``n`` trajectories from every group without replacement (all if a group has fewer)."""
         if n < 1:
@@ -934,6 +961,24 @@ class Dataset:
             raise DatasetError(f"path: {path} is a directory; give a file name such as {path / 'demos.npz'}")
         if path.exists() and not overwrite:
             raise FileExistsError(f"path: {path} already exists; choose another name or pass overwrite=True")
+        arrays = self.to_arrays()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                (np.savez_compressed if compress else np.savez)(fh, **arrays)
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
+            if overwrite:
+                os.replace(tmp, path)
+            else:
+                _rename_no_clobber(tmp, path)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+        return path
+
+    def to_arrays(self) -> dict[str, NDArray]:
+        """The fields :meth:`save` writes, by name (the ``.npz`` layout of the module docstring)."""
         arrays: dict[str, NDArray] = {
             "features": self.features, "offsets": self.offsets, "group": self.group,
             "feature_names": np.array(self.feature_names, dtype=np.str_),
@@ -952,20 +997,32 @@ class Dataset:
             arrays["skipped"] = self.skipped
         if self.env_id is not None:
             arrays["env_id"] = np.array(self.env_id, dtype=np.str_)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        clean_stale_temporaries(path)
-        fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                (np.savez_compressed if compress else np.savez)(fh, **arrays)
-            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
-            if overwrite:
-                os.replace(tmp, path)
-            else:
-                _rename_no_clobber(tmp, path)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
-        return path
+        return arrays
+
+    def content_hash(self) -> str:
+        """SHA-256 (hex) of what the likelihood reads: features, offsets, groups, states, feature names and
+        nominal weights (not group names, ``env_id`` or the labelling fields).
+
+        A run records it (``extra.data.sha256``) so that an export can tell the run's dataset from another one.
+        """
+        import hashlib
+
+        h = hashlib.sha256()
+        for key in ("features", "offsets", "group", "states", "nominal_weights"):
+            v = getattr(self, key)
+            if v is None:
+                h.update(f"{key}:none;".encode())
+                continue
+            a = np.ascontiguousarray(v, dtype=np.float64 if v.dtype.kind == "f" else np.int64)
+            h.update(f"{key}:{a.dtype.str}:{a.shape};".encode())
+            h.update(a.tobytes())
+        h.update(("feature_names:" + "\x1f".join(self.feature_names)).encode("utf-8"))
+        return h.hexdigest()
+
+    @property
+    def source(self) -> Path | None:
+        """The file this dataset was read from (:meth:`load`, :func:`load_dataset`), or None if built in memory."""
+        return getattr(self, "_source", None)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], *, allow_unlabelled: bool = False) -> "Dataset":
@@ -993,7 +1050,7 @@ class Dataset:
             warn(f"{path}: ignored unknown field(s) {', '.join(repr(k) for k in unknown)}; the fields of a dataset "
                  f"are {', '.join(_FIELDS)}")
         try:
-            return cls(
+            ds = cls(
                 features=content["features"],
                 offsets=content["offsets"],
                 group=content["group"],
@@ -1009,6 +1066,11 @@ class Dataset:
             )
         except DatasetError as exc:
             raise DatasetError(f"{path}: {exc}") from None
+        if ds.env_id is None and path.stem in SHIPPED_ENV_IDS and path.resolve().parent == shipped_dir().resolve():
+            # shipped files predate the env_id field; rewriting them would change every shipped-data tag
+            ds = dataclasses.replace(ds, env_id=SHIPPED_ENV_IDS[path.stem])
+        object.__setattr__(ds, "_source", path.resolve())  # runs record it (not a field: copies are other data)
+        return ds
 
     def __repr__(self) -> str:
         counts = ", ".join(("unlabelled" if k == 0 else f"G{k}{' ' + repr(self.group_name(k)) if self.group_names else ''}")

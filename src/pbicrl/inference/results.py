@@ -80,10 +80,11 @@ from pbicrl.inference.codes import (C_EVALS, C_FLIP_ACC, C_FLIP_PROP, C_T_ACC, C
                                     N_COUNTS)
 from pbicrl.inference.draws import ESTIMATORS, INDICATOR_LABELS, LEVEL, SELECTION_THRESHOLD, DrawsView
 from pbicrl.inference.sensitivity import PriorSensitivity, prior_sensitivity, weight_prior_spec
-from pbicrl.runs import SCHEMA_VERSION, load_run
+from pbicrl.runs import DATASET_FILE, SCHEMA_VERSION, load_run
 
 if TYPE_CHECKING:
     from pbicrl.analysis.diagnostics import Diagnostics
+    from pbicrl.inference.data import Dataset
     from pbicrl.inference.samplers.kernels import Kernel
 
 __all__ = ["Posterior", "DrawsView", "split_rhat", "write_run_dir", "check_out_dir", "claim_out_dir",
@@ -473,8 +474,32 @@ class Posterior(DrawsView):
         new = dataclasses.replace(self, identified=self.identified if identified is None else identified,
                                   prior=self.prior if prior is None else dict(prior), issue_warnings=False)
         object.__setattr__(new, "_issued", getattr(self, "_issued", frozenset()))
+        if self.dataset is not None:
+            new.keep_dataset(self.dataset)
         new._issue(new.warnings(), stacklevel=3)
         return new
+
+    # ------------------------------------------------------------------ the run's dataset
+    @property
+    def dataset(self) -> "Dataset | None":
+        """The dataset this posterior was inferred from, when :func:`pbicrl.infer` kept it (None otherwise)."""
+        return getattr(self, "_dataset", None)
+
+    def keep_dataset(self, dataset: "Dataset") -> None:
+        """Keep the run's dataset with the posterior (for the pointwise log-likelihood of :meth:`to_arviz`, and
+        stored by :meth:`save` when it has no file of its own).
+
+        Raises
+        ------
+        ValueError
+            The dataset's :meth:`~pbicrl.inference.data.Dataset.content_hash` differs from the one the run
+            recorded in ``extra["data"]["sha256"]``.
+        """
+        want = (self.extra.get("data") or {}).get("sha256")
+        if want is not None and dataset.content_hash() != want:
+            raise ValueError("dataset: not the dataset this run was inferred from (its content hash differs from "
+                             "extra['data']['sha256'])")
+        object.__setattr__(self, "_dataset", dataset)
 
     # ------------------------------------------------------------------ summaries
     @property
@@ -1002,7 +1027,9 @@ class Posterior(DrawsView):
 
     def save(self, out_dir: str | os.PathLike[str], *, overwrite: bool = False,
              extra_json: dict[str, Any] | None = None) -> Path:
-        """Write ``summary.json`` and ``chains.npz`` (and any ``extra_json`` files) to ``out_dir`` atomically.
+        """Write ``summary.json`` and ``chains.npz`` (and any ``extra_json`` files) to ``out_dir`` atomically; with
+        a dataset kept in memory (:meth:`keep_dataset`) and no file recorded, also a copy of it,
+        :data:`~pbicrl.runs.DATASET_FILE`, so that the export can rebuild the pointwise log-likelihood.
 
         :meth:`load` reads it back. ``overwrite=True`` replaces a previous run directory, never anything else.
 
@@ -1028,7 +1055,11 @@ class Posterior(DrawsView):
             v = getattr(self, key)
             if v is not None:
                 arrays[key] = np.asarray(v)
-        return write_run_dir(out_dir, {"summary.json": self.summary(), **(extra_json or {})}, {"chains.npz": arrays},
+        npz = {"chains.npz": arrays}
+        if self.dataset is not None and not (self.extra.get("data") or {}).get("path"):
+            # an in-memory dataset: stored with the run, so that the export can always rebuild the likelihood
+            npz[DATASET_FILE] = self.dataset.to_arrays()
+        return write_run_dir(out_dir, {"summary.json": self.summary(), **(extra_json or {})}, npz,
                              overwrite=overwrite)
 
     # ------------------------------------------------------------------ internals
@@ -1083,8 +1114,16 @@ class Posterior(DrawsView):
         return out
 
     def _identification_warnings(self) -> list[str]:
+        from pbicrl.analysis.identify import short_warnings
+
         ident = self.identified or {}
         given = ident.get("warnings")
+        short = short_warnings(ident)  # one line per feature, also for runs that stored the long paragraphs
+        if short is not None:
+            feats = set(ident.get("features") or {})
+            other = [str(m) for m in given if str(m).split(":", 1)[0] not in feats] \
+                if isinstance(given, (list, tuple)) else []
+            return short + other
         if isinstance(given, (list, tuple)):
             return [str(m) for m in given]
         alpha = ident.get("alpha")

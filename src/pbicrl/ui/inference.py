@@ -231,14 +231,24 @@ class InferenceJob:
     result: dict[str, Any] | None = None
     revision: int | None = None
     started: float | None = None
+    finished: float | None = None
+    settings: InferenceSettings | None = None
     _proc: Any = field(default=None, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def snapshot(self) -> dict[str, Any]:
+        """The job as ``GET /api/infer`` sends it; ``elapsed_s`` stops when the run ends, ``settings`` are the
+        ones that produced the result shown (None before the first run)."""
         with self._lock:
+            end = self.finished if self.finished is not None else time.monotonic()
+            s = self.settings
             return {"status": self.status, "progress": self.progress, "phase": self.phase, "message": self.message,
                     "result": self.result, "revision": self.revision,
-                    "elapsed_s": None if self.started is None else round(time.monotonic() - self.started, 1)}
+                    "elapsed_s": None if self.started is None else round(end - self.started, 1),
+                    "settings": None if s is None else {
+                        "iterations": s.iterations, "chains": s.chains,
+                        "margins": None if s.margins is None else list(s.margins), "seed": s.seed,
+                        "n_suggest": s.n_suggest, "figures": s.figures}}
 
     def start(self, labelling_path: Path, run_dir: Path, settings: InferenceSettings, revision: int) -> None:
         """Start the child; a second start while one runs is a :class:`JobBusy`."""
@@ -250,7 +260,8 @@ class InferenceJob:
             proc = ctx.Process(target=_child, args=(str(labelling_path), str(run_dir), settings, q), daemon=True)
             proc.start()
             self.status, self.progress, self.phase, self.message, self.result = "running", 0.0, "starting", "", None
-            self.revision, self.started, self._proc = revision, time.monotonic(), proc
+            self.revision, self.started, self.finished, self._proc = revision, time.monotonic(), None, proc
+            self.settings = settings
         threading.Thread(target=self._watch, args=(proc, q), daemon=True).start()
 
     def _watch(self, proc: Any, q: Any) -> None:
@@ -261,7 +272,7 @@ class InferenceJob:
                 if not proc.is_alive():
                     with self._lock:
                         if self.status == "running":
-                            self.status = "error"
+                            self.status, self.finished = "error", time.monotonic()
                             self.message = f"inference: the worker process ended (exit code {proc.exitcode})"
                     return
                 continue
@@ -270,8 +281,9 @@ class InferenceJob:
                     self.progress, self.phase = float(msg[1]), str(msg[2])
                 elif msg[0] == "done":
                     self.status, self.progress, self.phase, self.result = "done", 1.0, "done", msg[1]
+                    self.finished = time.monotonic()
                 elif msg[0] == "error":
-                    self.status, self.message = "error", str(msg[1])
+                    self.status, self.message, self.finished = "error", str(msg[1]), time.monotonic()
             if msg[0] in ("done", "error"):
                 proc.join(timeout=5)
                 return

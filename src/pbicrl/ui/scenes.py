@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.analysis import style as _style
 from pbicrl.inference.data import Dataset
 
 __all__ = ["KNOWN_ENVS", "normalise_env_id", "scene_for", "trajectory_payload", "thumbnail_payload",
@@ -36,7 +37,7 @@ KNOWN_ENVS = ("point_mass", "fetch_reach", "grid", "halfcheetah", "ant")
 MAX_THUMBNAIL_POINTS = 80
 """Points per trajectory in the list's small pictures (the detail view gets every state)."""
 
-_COLOURS = {"goal": "#2e7d32", "orange": "#f39c12", "red": "#c0392b", "grey": "#bdbdbd"}
+_COLOURS = _style.REGION_COLOURS  # the figures' colours (pbicrl.analysis.style), so page and figures agree
 _ALIASES = {"pointmass": "point_mass", "fetchreach": "fetch_reach", "fetchreachconstrained": "fetch_reach",
             "grid": "grid", "grid3x3": "grid", "halfcheetah": "halfcheetah", "ant": "ant"}
 
@@ -144,7 +145,12 @@ def scene_for(dataset: Dataset, env_id: str | None = None) -> dict[str, Any]:
     if env in ("halfcheetah", "ant") and k >= 1:
         return _wall(dataset, env)
     note = None
-    if raw and env is None:
+    if not raw:
+        # say so, and how to fix it: a pool made without its environment is drawn without goal or regions
+        note = ("no environment recorded (env_id), so no goal or regions are drawn: start with --env ENV "
+                f"({', '.join(KNOWN_ENVS)}), or make the pool with 'pbicrl pool DATA --n 40 --out pool.npz', which "
+                "keeps the data's env_id")
+    elif raw and env is None:
         note = f"environment {raw!r} is not one pbicrl knows how to draw ({', '.join(KNOWN_ENVS)})"
     elif env is not None:
         note = f"the states ({k} columns) do not fit the {env} picture"

@@ -11,7 +11,7 @@ import numpy as np
 
 from pbicrl.experiments.reproduce.configs import (DEFAULT_MODEL, FLAT_PRIOR, NOT_DEFAULT, PAPER_PRIOR, Context,
                                                   pairwise, run_infer_tasks, shipped_path, subsample)
-from pbicrl.experiments.reproduce.figures import pyplot
+from pbicrl.experiments.reproduce.figures import WEIGHTS_YLABEL, reward_distributions_figure, weights_figure
 from pbicrl.experiments.reproduce.markdown import fmt_mean_std, write_report
 from pbicrl.experiments.reproduce.paper import PAPER
 from pbicrl.experiments.reproduce.stats import mean_std
@@ -61,18 +61,8 @@ def exp_grid(ctx: Context) -> Path:
               "(three pairs cannot fix the scale of the weights, so the run-to-run spread is large)."]
 
     def figures(d: Path) -> list[str]:
-        plt = pyplot()
-        fig, ax = plt.subplots(figsize=(5, 3.2))
-        x = np.arange(len(feats))
-        for k, (label, col) in enumerate((("BPL", "grey"), ("BPL with margins", "tab:orange"))):
-            ax.bar(x + (k - 0.5) * 0.38, table[label]["mean"], 0.38, yerr=table[label]["std"], color=col, label=label)
-        ax.set_xticks(x, feats)
-        ax.set_ylabel("inferred weight")
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(d / "weights.png", dpi=120)
-        plt.close(fig)
-        return ["weights.png"]
+        return [weights_figure(d, "weights.png", feats, None, table, seeds=runs, ylabel="inferred weight (MAP)",
+                               title="grid: BPL with and without margins")]
 
     return write_report(ctx, "grid", "Grid example (paper Fig. 1b)", lines, {"runs": runs, "weights": table}, figures)
 
@@ -168,40 +158,9 @@ def _navigation(ctx: Context, name: str, dataset: str) -> Path:
     ds_rel = {"true": tuning.group_means.tolist()}
 
     def figures(d: Path) -> list[str]:
-        plt = pyplot()
-        fig, ax = plt.subplots(figsize=(7, 3.5))
-        x = np.arange(len(feats))
-        wdt = 0.8 / (len(methods) + 1)
-        ax.bar(x - 0.4 + wdt / 2, true_pen, wdt, color="black", label="truth")
-        for k, (label, _, _) in enumerate(methods):
-            ax.bar(x - 0.4 + wdt * (k + 1.5), rows[label]["mean"], wdt, yerr=rows[label]["std"], label=label)
-        ax.set_xticks(x, feats, fontsize=8)
-        ax.set_ylabel("MAP c*w_p")
-        ax.set_yscale("symlog", linthresh=1.0)
-        ax.legend(fontsize=6)
-        fig.tight_layout()
-        fig.savefig(d / "weights.png", dpi=120)
-        plt.close(fig)
-        # reward distributions per group: truth, m = 0, tuned (appendix figure)
-        fig, axes = plt.subplots(1, 3, figsize=(10, 3.2))
-        rng = np.random.default_rng(0)
-        sub = ds0
-        F = sub.mean_features
-        panels = [("true weights", true_w)]
-        for label in ("PBICRL, m = 0", "PBICRL, tuned margins"):
-            panels.append((label, wn + np.array(rows[label]["per_seed"][0])))
-        for ax, (label, w) in zip(axes, panels):
-            r = F @ w
-            for k, g in enumerate(sub.group_labels):
-                v = r[sub.group == g]
-                ax.scatter(k + 0.15 * rng.standard_normal(v.size), v, s=6, color="grey", alpha=0.6)
-                ax.errorbar(k, v.mean(), yerr=v.std(), fmt="o", color="tab:red")
-            ax.set_xticks(range(len(sub.group_labels)), [f"G{g}" for g in sub.group_labels])
-            ax.set_title(label, fontsize=9)
-        axes[0].set_ylabel("mean reward per demonstration")
-        fig.tight_layout()
-        fig.savefig(d / "reward_distributions.png", dpi=120)
-        plt.close(fig)
+        weights_figure(d, "weights.png", feats, true_pen, rows, seeds=ctx.seeds, ylabel=WEIGHTS_YLABEL,
+                       title=f"{name}: effective penalties by method")
+        reward_distributions_figure(d, ds0, true_w, wn, rows)
         return ["weights.png", "reward_distributions.png"]
 
     results = {"methods": rows, "tuning": tuning.to_dict(), "paper": paper, "pairs": ctx.pairs, "protocol": ctx.pairs,

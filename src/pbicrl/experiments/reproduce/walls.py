@@ -10,7 +10,7 @@ import numpy as np
 
 from pbicrl.experiments.reproduce.configs import (DEFAULT_MODEL, NOT_DEFAULT, PAPER_PRIOR, Context, pairwise,
                                                   run_infer_tasks, subsample, wall_configs)
-from pbicrl.experiments.reproduce.figures import pyplot, sensitivity_figure
+from pbicrl.experiments.reproduce.figures import sensitivity_figure, sensitivity_panels_figure
 from pbicrl.experiments.reproduce.markdown import fmt_cmse, fmt_interval, fmt_mean_std, write_report
 from pbicrl.experiments.reproduce.paper import PAPER
 from pbicrl.experiments.reproduce.stats import wall_row
@@ -163,27 +163,6 @@ def exp_sensitivity(ctx: Context) -> Path:
     def figures(d: Path) -> list[str]:
         if not panels:
             return []
-        plt = pyplot()
-        fig, axes = plt.subplots(len(models), len(panels), figsize=(5.2 * len(panels), 3.0 * len(models)), squeeze=False)
-        for j, (name, feats, true_pen, res_n) in enumerate(panels):
-            x = np.arange(len(feats))
-            for i, (label, model) in enumerate(models):
-                ax = axes[i, j]
-                w = 0.8 / (len(sizes) + 1)
-                ax.bar(x - 0.4 + w / 2, true_pen, w, color="black", label="truth")
-                for k, n in enumerate(sizes):
-                    e = res_n[model][n]
-                    ax.bar(x - 0.4 + w * (k + 1.5), e["mean"], w, yerr=e["std"], label=f"{n} per group")
-                ax.set_xticks(x, feats, fontsize=7)
-                ax.set_yscale("symlog", linthresh=1.0)
-                ax.set_title(f"{name}: {label}", fontsize=9)
-                ax.axhline(0, color="grey", lw=0.5)
-            axes[0, j].legend(fontsize=6)
-        for ax in axes[:, 0]:
-            ax.set_ylabel("effective penalty c*w_p")
-        fig.tight_layout()
-        fig.savefig(d / "sensitivity.png", dpi=200)
-        plt.close(fig)
-        return ["sensitivity.png"]
+        return [sensitivity_panels_figure(d, panels, models, sizes, seeds=ctx.seeds)]
 
     return write_report(ctx, "sensitivity", "Sensitivity to the number of demonstrations", lines, results, figures)

@@ -14,6 +14,9 @@ const app = {
   suggestions: [],
   busy: false,
   polling: null,
+  multi: new Set(),   // shift-click selection: the keys and a drag apply to all of them
+  undo: [],           // label changes to undo (Ctrl-Z), each {ids, group, skipped} as they were before
+  toastTimer: null,
 };
 
 // ------------------------------------------------------------------------------------------ API
@@ -37,12 +40,16 @@ async function api(method, url, body) {
   return data;
 }
 
-function showError(err) {
+// Errors appear in a toast fixed in the viewport (where the user is looking, however far the page is scrolled).
+function showError(err, opts) {
   const banner = document.getElementById("banner");
   document.getElementById("banner-text").textContent = err.message || String(err);
   document.getElementById("banner-reload").hidden = err.status !== 409;
   banner.hidden = false;
-  setStatus(err.status === 409 ? "conflict: reload" : "not saved", "bad");
+  if (app.toastTimer) clearTimeout(app.toastTimer);
+  // a conflict stays until the user reloads or closes it; anything else fades after a while
+  if (err.status !== 409) app.toastTimer = setTimeout(() => { banner.hidden = true; }, 8000);
+  if (!(opts && opts.keepStatus)) setStatus(err.status === 409 ? "conflict: reload" : "not saved", "bad");
 }
 
 function setStatus(text, kind) {
@@ -52,18 +59,45 @@ function setStatus(text, kind) {
 }
 
 // Every change sends the revision the page last saw; the server answers with the new state (or 409).
-async function change(url, body) {
-  if (app.busy) return;
+async function change(url, body, opts) {
+  if (app.busy) return false;
   app.busy = true;
   setStatus("saving…", "busy");
+  const before = app.state;
   try {
     const st = await api("POST", url, Object.assign({ revision: app.state.revision }, body));
+    if (url === "/api/assign" || url === "/api/skip") {
+      if (!(opts && opts.undoing)) {
+        app.undo.push(body.ids.map((i) => ({ id: i, group: before.group[i], skipped: before.skipped[i] })));
+        if (app.undo.length > 100) app.undo.shift();
+      }
+    } else if (url === "/api/groups") {
+      app.undo = [];  // group labels changed meaning: an older label change cannot be undone safely
+    }
     applyState(st);
+    return true;
   } catch (err) {
     showError(err);
+    return false;
   } finally {
     app.busy = false;
   }
+}
+
+// Ctrl-Z: put the demonstrations of the last label change back where they were.
+async function undoLast() {
+  const last = app.undo.pop();
+  if (!last) { showError({ message: "nothing to undo" }, { keepStatus: true }); return; }
+  const skipped = last.filter((e) => e.skipped).map((e) => e.id);
+  const byGroup = new Map();
+  for (const e of last) if (!e.skipped) byGroup.set(e.group, [...(byGroup.get(e.group) || []), e.id]);
+  if (skipped.length) await change("/api/skip", { ids: skipped, skipped: true }, { undoing: true });
+  for (const [g, ids] of byGroup) await change("/api/assign", { ids, group: g }, { undoing: true });
+  setStatus(`undone · revision ${app.state.revision}`);
+}
+
+function targets() {
+  return app.multi.size ? [...app.multi] : app.selected === null ? [] : [app.selected];
 }
 
 function applyState(st) {
@@ -94,12 +128,20 @@ function drawSeries(svg, series, w, h, upto, big) {
   const n = series.length;
   const last = upto < 0 ? n - 1 : Math.min(upto, n - 1);
   const lw = big ? 2.5 : 1.5;
+  // the large view keeps a margin for its axes (ticks with values and axis names)
+  const L = big ? 44 : 0, B = big ? 34 : 0, T0 = big ? 6 : 0, R0 = big ? 8 : 0;
+  const pw = w - L - R0, ph = h - T0 - B;
   if (sc.kind === "navigation" || sc.kind === "path2d") {
     const [x0, x1, y0, y1] = sc.bounds;
-    const s = Math.min(w / (x1 - x0), h / (y1 - y0));
-    const ox = (w - s * (x1 - x0)) / 2, oy = (h - s * (y1 - y0)) / 2;
+    const s = Math.min(pw / (x1 - x0), ph / (y1 - y0));
+    const ox = L + (pw - s * (x1 - x0)) / 2, oy = B + (ph - s * (y1 - y0)) / 2;
     const X = (x) => ox + s * (x - x0), Y = (y) => h - oy - s * (y - y0);
     el("rect", { x: X(x0), y: Y(y1), width: s * (x1 - x0), height: s * (y1 - y0), fill: "#fbfbfb", stroke: "#eee" }, svg);
+    if (big) {
+      const names = sc.axis_labels || ["x", "y"];
+      axis(svg, "x", ticks(x0, x1, 5), X, Y(y0), names[0], (X(x0) + X(x1)) / 2, h - 4);
+      axis(svg, "y", ticks(y0, y1, 5), Y, X(x0), names[1], 12, (Y(y0) + Y(y1)) / 2);
+    }
     for (const r of sc.regions) {
       if (r.shape === "disc") {
         el("circle", { cx: X(r.centre[0]), cy: Y(r.centre[1]), r: s * r.radius, fill: r.color, "fill-opacity": 0.35, stroke: r.color }, svg);
@@ -127,8 +169,18 @@ function drawSeries(svg, series, w, h, upto, big) {
     const q = series[last];
     el("circle", { cx: (q[1] + 0.5) * cw, cy: (R - 0.5 - q[0]) * ch, r: big ? 8 : 3, fill: "#1565c0" }, svg);
   } else if (sc.kind === "wall") {
-    const [lo, hi] = sc.x_range, T = Math.max(sc.max_length - 1, 1);
-    const X = (t) => 4 + (w - 8) * (t / T), Y = (x) => h - 4 - (h - 8) * ((x - lo) / (hi - lo || 1));
+    let [lo, hi] = sc.x_range;
+    if (big) {  // the large view zooms to this demonstration and the wall: x = 7.9 and 8.1 must look different
+      const xs = series.map((p) => p[0]).concat(sc.wall_x === null ? [] : [sc.wall_x]);
+      const a = Math.min(...xs), b = Math.max(...xs), pad = 0.06 * (b - a || 1);
+      [lo, hi] = [a - pad, b + pad];
+    }
+    const T = Math.max(sc.max_length - 1, 1);
+    const X = (t) => L + 4 + (pw - 8) * (t / T), Y = (x) => h - B - 4 - (ph - 8) * ((x - lo) / (hi - lo || 1));
+    if (big) {
+      axis(svg, "x", ticks(0, T, 5), X, h - B, "time step t", L + pw / 2, h - 4);
+      axis(svg, "y", ticks(lo, hi, 8), Y, L, "x (forward position)", 12, T0 + ph / 2);
+    }
     if (sc.wall_x !== null) {
       el("rect", { x: 0, y: 0, width: w, height: Y(sc.wall_x), fill: "#c0392b", "fill-opacity": 0.12 }, svg);
       el("line", { x1: 0, x2: w, y1: Y(sc.wall_x), y2: Y(sc.wall_x), stroke: "#c0392b", "stroke-dasharray": "4 3" }, svg);
@@ -140,20 +192,43 @@ function drawSeries(svg, series, w, h, upto, big) {
     el("polyline", { points: pts(n - 1), fill: "none", stroke: "#90a4ae", "stroke-width": lw * 0.6 }, svg);
     el("polyline", { points: pts(last), fill: "none", stroke: "#1565c0", "stroke-width": lw }, svg);
     el("circle", { cx: X(tOf(last)), cy: Y(series[last][0]), r: big ? 5 : 2, fill: "#1565c0" }, svg);
-    if (big) el("text", { x: w - 4, y: h - 6, "text-anchor": "end", "font-size": 11, fill: "#777" }, svg).textContent = "x(t)";
   } else {  // features: one strip per feature over time
-    const d = sc.feature_names.length, T = Math.max(sc.max_length - 1, 1), sh = h / d;
+    const d = sc.feature_names.length, T = Math.max(sc.max_length - 1, 1), sh = ph / d;
+    const tOf = (i) => (app.thumbsFull ? i : i * ((seriesLength(series) - 1) / Math.max(n - 1, 1)));
+    const Xt = (t) => L + 2 + (pw - 4) * (t / T);
     for (let j = 0; j < d; j++) {
       const [lo, hi] = sc.ranges[j];
-      const Y = (v) => (j + 1) * sh - 2 - (sh - 4) * ((v - lo) / (hi - lo || 1));
-      const tOf = (i) => (app.thumbsFull ? i : i * ((seriesLength(series) - 1) / Math.max(n - 1, 1)));
-      const X = (i) => 2 + (w - 4) * (tOf(i) / T);
-      el("rect", { x: 0, y: j * sh, width: w, height: sh, fill: j % 2 ? "#fafafa" : "#f2f6fb" }, svg);
-      el("polyline", { points: series.slice(0, last + 1).map((p, i) => `${X(i).toFixed(1)},${Y(p[j]).toFixed(1)}`).join(" "),
+      const Y = (v) => T0 + (j + 1) * sh - 2 - (sh - 4) * ((v - lo) / (hi - lo || 1));
+      el("rect", { x: L, y: T0 + j * sh, width: pw, height: sh, fill: j % 2 ? "#fafafa" : "#f2f6fb" }, svg);
+      el("polyline", { points: series.slice(0, last + 1).map((p, i) => `${Xt(tOf(i)).toFixed(1)},${Y(p[j]).toFixed(1)}`).join(" "),
                        fill: "none", stroke: "#1565c0", "stroke-width": big ? 1.5 : 1 }, svg);
-      if (big) el("text", { x: 4, y: j * sh + 12, "font-size": 11, fill: "#555" }, svg).textContent = sc.feature_names[j];
+      if (big) {
+        el("text", { x: L + 4, y: T0 + j * sh + 12, "font-size": 11, fill: "#555" }, svg).textContent = sc.feature_names[j];
+        for (const v of [lo, hi]) {
+          el("text", { x: L - 3, y: Y(v) + 3, "font-size": 9, "text-anchor": "end", fill: "#333", class: "tick-label" }, svg).textContent = tickText(v);
+        }
+      }
+    }
+    if (big) axis(svg, "x", ticks(0, T, 5), Xt, h - B, "time step t", L + pw / 2, h - 4);
+  }
+}
+
+// An axis of the large view: a line, ticks with their values and the axis name.
+function axis(svg, which, values, at, pos, name, nx, ny) {
+  const g = el("g", { class: `axis axis-${which}` }, svg);
+  for (const v of values) {
+    const p = at(v);
+    if (which === "x") {
+      el("line", { x1: p, x2: p, y1: pos, y2: pos + 4, stroke: "#555" }, g);
+      el("text", { x: p, y: pos + 14, "font-size": 10, "text-anchor": "middle", fill: "#333", class: "tick-label" }, g).textContent = tickText(v);
+    } else {
+      el("line", { x1: pos - 4, x2: pos, y1: p, y2: p, stroke: "#555" }, g);
+      el("text", { x: pos - 6, y: p + 3, "font-size": 10, "text-anchor": "end", fill: "#333", class: "tick-label" }, g).textContent = tickText(v);
     }
   }
+  const t = el("text", { x: nx, y: ny, "font-size": 11, "text-anchor": "middle", fill: "#333", class: "axis-label" }, g);
+  if (which === "y") t.setAttribute("transform", `rotate(-90 ${nx} ${ny})`);
+  t.textContent = name;
 }
 
 // The real length of a thinned series: the thumbnails keep both ends, the lengths come with the state.
@@ -184,12 +259,29 @@ function makeCard(i) {
   const label = document.createElement("div");
   label.textContent = `#${i}`;
   card.appendChild(label);
-  card.addEventListener("click", () => select(i));
+  card.addEventListener("click", (e) => {
+    if (e.shiftKey || e.ctrlKey || e.metaKey) {
+      // shift-click (or Ctrl/Cmd-click) adds to / removes from the selection
+      if (!app.multi.size && app.selected !== null && app.selected !== i) app.multi.add(app.selected);
+      if (app.multi.has(i)) app.multi.delete(i); else app.multi.add(i);
+    } else {
+      app.multi.clear();
+    }
+    renderMulti();
+    select(i);
+  });
   card.addEventListener("dragstart", (e) => {
-    e.dataTransfer.setData("text/plain", String(i));
+    const ids = app.multi.has(i) ? [...app.multi] : [i];
+    e.dataTransfer.setData("text/plain", ids.join(","));
     e.dataTransfer.effectAllowed = "move";
   });
   return card;
+}
+
+function renderMulti() {
+  app.cards.forEach((c, i) => c.classList.toggle("multi", app.multi.has(i)));
+  const n = app.multi.size;
+  document.getElementById("multi-note").textContent = n ? `${n} selected (keys and drag apply to all; Esc clears)` : "";
 }
 
 function dropZone(zone) {
@@ -198,12 +290,13 @@ function dropZone(zone) {
   zone.addEventListener("drop", (e) => {
     e.preventDefault();
     zone.classList.remove("over");
-    const id = parseInt(e.dataTransfer.getData("text/plain"), 10);
-    if (Number.isNaN(id)) return;
+    const ids = e.dataTransfer.getData("text/plain").split(",").map((x) => parseInt(x, 10)).filter((x) => !Number.isNaN(x));
+    if (!ids.length) return;
     const g = zone.dataset.group;
-    if (g === "skip") change("/api/skip", { ids: [id], skipped: true });
-    else change("/api/assign", { ids: [id], group: parseInt(g, 10) });
-    select(id);
+    if (g === "skip") change("/api/skip", { ids, skipped: true });
+    else change("/api/assign", { ids, group: parseInt(g, 10) });
+    if (ids.length > 1) { app.multi.clear(); renderMulti(); }
+    select(ids[0]);
   });
 }
 
@@ -274,6 +367,7 @@ function renderBoard() {
   document.getElementById("skip-count").textContent = `(${st.n_skipped})`;
   renderGaps();
   if (app.selected !== null) app.cards[app.selected].classList.add("selected");
+  renderMulti();
   renderInfo();
 }
 
@@ -342,7 +436,7 @@ async function select(i) {
   app.selected = i;
   const card = app.cards[i];
   card.classList.add("selected");
-  card.scrollIntoView({ block: "nearest", inline: "nearest" });
+  revealInList(card);
   document.getElementById("demo-title").textContent = `#${i}`;
   try {
     const demo = await api("GET", `/api/demo/${i}`);
@@ -356,6 +450,16 @@ async function select(i) {
     drawBig();
     renderInfo();
   } catch (err) { showError(err); }
+}
+
+// Scrolls the card's own list so that the card shows, never the page (scrollIntoView scrolled the whole page
+// down to the unlabelled list on load).
+function revealInList(card) {
+  const box = card.parentElement;
+  if (!box) return;
+  const top = card.offsetTop - box.offsetTop, bottom = top + card.offsetHeight;
+  if (top < box.scrollTop) box.scrollTop = top;
+  else if (bottom > box.scrollTop + box.clientHeight) box.scrollTop = bottom - box.clientHeight;
 }
 
 function stop() {
@@ -394,7 +498,10 @@ function nextUnlabelled(after) {
 }
 
 function onKey(e) {
-  if (e.target.tagName === "INPUT" || e.ctrlKey || e.metaKey || e.altKey) return;
+  if (e.target.tagName === "INPUT") return;
+  if ((e.ctrlKey || e.metaKey) && !e.altKey && (e.key === "z" || e.key === "Z")) { e.preventDefault(); undoLast(); return; }
+  if (e.ctrlKey || e.metaKey || e.altKey) return;
+  if (e.key === "Escape") { app.multi.clear(); renderMulti(); return; }
   const st = app.state, i = app.selected;
   if (e.key === " ") { e.preventDefault(); play(); return; }
   if (["ArrowRight", "ArrowDown", "ArrowLeft", "ArrowUp"].includes(e.key)) {
@@ -406,14 +513,23 @@ function onKey(e) {
     return;
   }
   if (i === null) return;
+  const ids = targets();
+  const many = ids.length > 1;
   if (/^[0-9]$/.test(e.key)) {
     const g = parseInt(e.key, 10);
-    if (g > st.groups.length) { showError({ message: `no group ${g}: there are ${st.groups.length}` }); return; }
-    const next = g > 0 ? nextUnlabelled(i) : i;
-    change("/api/assign", { ids: [i], group: g }).then(() => { if (next !== i) select(next); });
+    if (g > st.groups.length) { showError({ message: `no group ${g}: there are ${st.groups.length}` }, { keepStatus: true }); return; }
+    const next = g > 0 && !many ? nextUnlabelled(i) : i;
+    change("/api/assign", { ids, group: g }).then((ok) => {
+      if (ok && many) { app.multi.clear(); renderMulti(); }
+      if (ok && next !== i) select(next);
+    });
   } else if (e.key === "s") {
-    const next = nextUnlabelled(i);
-    change("/api/skip", { ids: [i], skipped: !st.skipped[i] }).then(() => { if (!st.skipped[i] && next !== i) select(next); });
+    const next = many ? i : nextUnlabelled(i);
+    const skip = many ? true : !st.skipped[i];
+    change("/api/skip", { ids, skipped: skip }).then((ok) => {
+      if (ok && many) { app.multi.clear(); renderMulti(); }
+      if (ok && skip && next !== i) select(next);
+    });
   }
 }
 
@@ -445,11 +561,25 @@ function poll() {
     document.getElementById("progress-text").textContent =
       job.status === "running" ? `${job.phase} ${Math.round(100 * job.progress)}% · ${job.elapsed_s ?? 0} s` :
       job.status === "error" ? `failed: ${job.message}` : job.status === "done" ? `done in ${job.elapsed_s} s` : "";
+    if (job.settings) showSettings(job.settings, job.status !== "running");
     if (job.status === "running") { app.polling = setTimeout(poll, 500); return; }
     document.getElementById("infer-btn").disabled = false;
     if (job.status === "error") showError({ message: job.message });
     if (job.status === "done") renderResult(job.result, job.revision);
   }).catch(showError);
+}
+
+// The settings of the run whose result is shown; after a reload they refill the form as well.
+function showSettings(s, refill) {
+  const m = s.margins === null ? "none" : s.margins.join(", ");
+  document.getElementById("run-settings").textContent =
+    `run settings: ${s.iterations.toLocaleString("en")} iterations × ${s.chains} chain(s), margins ${m}, seed ${s.seed}`;
+  if (refill && !app.formTouched) {
+    document.getElementById("iterations").value = s.iterations;
+    document.getElementById("chains").value = s.chains;
+    document.getElementById("margins").value = s.margins === null ? "" : s.margins.join(",");
+    document.getElementById("figures").checked = s.figures;
+  }
 }
 
 function fmt(x) { return x === null || x === undefined ? "–" : Math.abs(x) >= 100 ? x.toFixed(0) : x.toPrecision(3); }
@@ -536,6 +666,9 @@ function renderResult(res, revision) {
     const img = document.createElement("img");
     img.src = `/api/figures/${name}?r=${revision}-${Date.now()}`;
     img.alt = name;
+    img.title = "click: full size";
+    img.className = "figure";
+    img.addEventListener("click", () => openFigure(img.src, name));
     out.appendChild(img);
   }
   if (res.figures_note) {
@@ -550,16 +683,49 @@ function renderResult(res, revision) {
   out.appendChild(d);
 }
 
-// Box plot of each group's returns under the selected-set estimate (min, 10/25/50/75/90 %, max).
+// A figure at its full size in an overlay (click or Esc closes it).
+function openFigure(src, name) {
+  const box = document.getElementById("lightbox");
+  const img = document.getElementById("lightbox-img");
+  img.src = src;
+  img.alt = name;
+  box.hidden = false;
+}
+
+// "Nice" tick values covering [lo, hi].
+function ticks(lo, hi, n) {
+  if (!(hi > lo)) return [lo];
+  const raw = (hi - lo) / Math.max(n, 1), mag = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 2.5, 5, 10].map((f) => f * mag).find((s) => s >= raw) || 10 * mag;
+  const out = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) out.push(Math.abs(v) < step * 1e-9 ? 0 : v);
+  return out;
+}
+
+function tickText(v) {
+  const a = Math.abs(v);
+  return a >= 1e4 || (a > 0 && a < 1e-3) ? v.toExponential(1) : String(Number(v.toPrecision(4)));
+}
+
+// Box plot of each group's returns under the selected-set estimate (min, 10/25/50/75/90 %, max), with a value axis.
 function rewardPlot(groups) {
-  const w = 340, rowh = 26, h = 24 + rowh * groups.length;
+  const w = 340, rowh = 26, h = 50 + rowh * groups.length;
   const svg = document.createElementNS(SVG, "svg");
   svg.setAttribute("viewBox", `0 0 ${w} ${h}`);
-  svg.setAttribute("width", "100%");
+  svg.setAttribute("width", w);  // drawn at its own size: scaled to a wide column its text grew to ~30 px
+  svg.setAttribute("height", h);
   svg.id = "reward-plot";
   const lo = Math.min(...groups.map((g) => g.quantiles[0])), hi = Math.max(...groups.map((g) => g.quantiles[6]));
   const X = (v) => 90 + (w - 100) * ((v - lo) / (hi - lo || 1));
   el("text", { x: 4, y: 14, "font-size": 11, fill: "#555" }, svg).textContent = "reward per group (selected-set estimate)";
+  const axisY = 30 + rowh * groups.length - 8;
+  el("line", { x1: X(lo), x2: X(hi), y1: axisY, y2: axisY, stroke: "#555" }, svg);
+  for (const v of ticks(lo, hi, 4)) {
+    el("line", { x1: X(v), x2: X(v), y1: axisY, y2: axisY + 4, stroke: "#555", class: "tick" }, svg);
+    el("text", { x: X(v), y: axisY + 15, "font-size": 10, "text-anchor": "middle", fill: "#333", class: "tick-label" }, svg).textContent = tickText(v);
+  }
+  el("text", { x: (X(lo) + X(hi)) / 2, y: axisY + 28, "font-size": 10, "text-anchor": "middle", fill: "#555" }, svg).textContent =
+    "length-normalised return";
   groups.forEach((g, k) => {
     const y = 30 + k * rowh, q = g.quantiles;
     el("text", { x: 4, y: y + 4, "font-size": 11 }, svg).textContent = `${g.name} (${g.n})`;
@@ -603,6 +769,11 @@ async function main() {
     if (todo.length) select(todo[0]);
   });
   document.getElementById("banner-close").addEventListener("click", () => { document.getElementById("banner").hidden = true; });
+  document.getElementById("lightbox").addEventListener("click", () => { document.getElementById("lightbox").hidden = true; });
+  document.addEventListener("keydown", (e) => { if (e.key === "Escape") document.getElementById("lightbox").hidden = true; });
+  for (const id of ["iterations", "chains", "margins", "figures"]) {
+    document.getElementById(id).addEventListener("input", () => { app.formTouched = true; });
+  }
   document.getElementById("banner-reload").addEventListener("click", () => location.reload());
 }
 
