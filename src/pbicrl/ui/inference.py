@@ -156,7 +156,8 @@ def summarise(run: Any, labelled: Any) -> dict[str, Any]:
         q = np.quantile(x, [0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0])
         groups.append({"label": int(k), "name": labelled.group_name(k), "n": int(x.size),
                        "quantiles": [float(v) for v in q], "mean": float(x.mean())})
-    summary = run.summary if hasattr(run, "summary") else {}
+    summary = getattr(run, "summary", None) or {}
+    summary = summary() if callable(summary) else summary  # a RunRecord's dict or a Posterior's method
     conv = (summary.get("extra") or {}).get("convergence")
     return {"features": feats, "selected": chosen if meaning == "posterior" else None,
             "indicator_meaning": meaning, "indicator_label": INDICATOR_LABELS[meaning], "groups": groups,

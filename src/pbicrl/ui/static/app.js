@@ -534,9 +534,15 @@ function onKey(e) {
 }
 
 // ------------------------------------------------------------------------------------------ inference
+// "auto" (run until converged, the default) or a number of iterations per chain
+function iterationsSetting(text) {
+  const t = String(text).trim().toLowerCase();
+  return t === "" || t === "auto" ? "auto" : parseInt(t.replace(/[_,]/g, ""), 10);
+}
+
 async function runInference() {
   const body = {
-    iterations: parseInt(document.getElementById("iterations").value, 10),
+    iterations: iterationsSetting(document.getElementById("iterations").value),
     chains: parseInt(document.getElementById("chains").value, 10),
     figures: document.getElementById("figures").checked,
   };
@@ -573,7 +579,7 @@ function poll() {
 function showSettings(s, refill) {
   const m = s.margins === null ? "none" : s.margins.join(", ");
   document.getElementById("run-settings").textContent =
-    `run settings: ${s.iterations.toLocaleString("en")} iterations × ${s.chains} chain(s), margins ${m}, seed ${s.seed}`;
+    `run settings: ${s.iterations === "auto" ? "until converged" : s.iterations.toLocaleString("en") + " iterations"} × ${s.chains} chain(s), margins ${m}, seed ${s.seed}`;
   if (refill && !app.formTouched) {
     document.getElementById("iterations").value = s.iterations;
     document.getElementById("chains").value = s.chains;
@@ -592,6 +598,19 @@ function renderResult(res, revision) {
   // P(c=1) and a selection only where they are posterior probabilities (res.indicator_meaning "posterior");
   // a chain frequency (paper/authors samplers) or bpl's model membership is shown under its own name
   const meaning = res.indicator_meaning || "posterior";
+  if (res.converged === false) {
+    // never folded away: the numbers below are not yet the posterior
+    const bad = document.createElement("div");
+    bad.className = "not-converged";
+    bad.setAttribute("role", "alert");
+    const c = res.convergence || {};
+    const failing = Object.entries(c.failing || {});
+    bad.textContent = `NOT CONVERGED after ${Math.round(c.wall_s || 0)} s: ${failing.length} reported ` +
+      `quantit${failing.length === 1 ? "y falls" : "ies fall"} short (` +
+      failing.slice(0, 3).map(([k, v]) => `${k}: ${v}`).join("; ") +
+      `). Do not trust these numbers or the suggestions yet; label more demonstrations or run again.`;
+    out.appendChild(bad);
+  }
   if (res.selected === null || res.selected === undefined) {
     p.textContent = `Labels of revision ${revision}; ${res.n_draws} draws. No selection: the column "${res.indicator_label}" is not a posterior probability.`;
   } else {
@@ -643,7 +662,9 @@ function renderResult(res, revision) {
   if (res.suggestions) {
     app.suggestions = res.suggestions.suggestions.map((s) => s.index);
     const h = document.createElement("h3");
-    h.textContent = "Label these next (most informative about the constraints)";
+    h.textContent = res.converged === false
+      ? "Label these next (ranked from a run that did NOT converge: a rough guide only)"
+      : "Label these next (most informative about the constraints)";
     const ul = document.createElement("ol");
     ul.className = "sugg small";
     for (const s of res.suggestions.suggestions) {
