@@ -37,8 +37,16 @@ def _worker(row: str, data: str, iterations: int, seed: int) -> dict[str, Any]:
     warnings.simplefilter("ignore")
     import numpy as np
 
+    import importlib.util
+
     import pbicrl
-    from pbicrl.inference.convergence import check_convergence, reported_quantities
+
+    # the statistics of this tree for every row (the 'before' tree has no such module): a standalone file
+    spec = importlib.util.spec_from_file_location("_convergence", os.path.join(SRC, "pbicrl", "inference",
+                                                                               "convergence.py"))
+    conv_mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(conv_mod)  # type: ignore[union-attr]
+    check_convergence, reported_quantities = conv_mod.check_convergence, conv_mod.reported_quantities
 
     ds = pbicrl.load_dataset(data)
     kw: dict[str, Any] = {"chains": 4, "seed": seed, "progress": False}

@@ -622,12 +622,7 @@ def _converged(kernel: Kernel, parts: list[dict[str, list[np.ndarray]]], names: 
     if kernel.constraints is not None:
         fnames += list(kernel.constraints.names)
     fnames = fnames[:d]
-    pnames = None
-    if kernel.constraints is not None and th.shape[2]:
-        pnames = [f"{cn}.{pn}" for cn, con in zip(kernel.constraints.names, kernel.constraints.constraints)
-                  for pn in getattr(con, "param_names", [f"p{k}" for k in range(con.n_params)])]
-        if len(pnames) != th.shape[2]:
-            pnames = None
+    pnames = list(kernel.constraints.param_names) if kernel.constraints is not None and th.shape[2] else None
 
     def verdict(lo: int) -> Convergence:
         q = reported_quantities(c[:, lo:], w[:, lo:], ll[:, lo:], fnames, th[:, lo:] if th.shape[2] else None,
