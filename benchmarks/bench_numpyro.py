@@ -71,7 +71,7 @@ INSTALL_HINT = 'NumPyro, JAX and ArviZ are needed for this benchmark: pip instal
 
 # Quadrature constants (checked by --verify against the exact kernel).
 NEWTON_STEPS = 30
-U_LEFT, U_RIGHT, U_STEP = -14.0, 12.0, 0.25  # u grid: 105 nodes
+U_LEFT, U_RIGHT, U_STEP = -14.0, 12.0, 0.1  # u grid: 261 nodes (0.25: 105 nodes, 2e-4 off at posterior draws)
 STRETCH_C, STRETCH_GAMMA = 0.15, 0.3
 L_TINY = -30.0  # u below: log(1 - exp(-e^u)) = u - e^u / 2 to 1e-26
 V_HUGE = 745.0  # e^u above: the factor 1 - exp(-v) is exactly 1
@@ -220,7 +220,8 @@ def verify(dataset: pbicrl.Dataset, n_random: int = 20, seed: int = 0, posterior
     """Largest relative difference of the JAX quadrature from pbicrl's exact grouped kernel.
 
     Weights: ``n_random`` prior draws (random indicators, half-t penalties), ``n_random`` draws with the
-    penalties shrunk towards the posterior scale (prior / 20), and the given posterior draws.
+    penalties shrunk (prior / 20), ``n_random`` with :math:`|w_j| / s_j` log-uniform on [1, 100] (near-certain
+    orderings: the posterior of separated groups), and the given posterior draws.
     """
     jax, jnp, _ = _require_jax()
     exact = PreferenceLikelihood.from_dataset(dataset, likelihood="grouped")
@@ -237,6 +238,10 @@ def verify(dataset: pbicrl.Dataset, n_random: int = 20, seed: int = 0, posterior
             c = rng.integers(0, 2, d).astype(float)
             w = -np.abs(rng.standard_t(3.0, d)) * scale / shrink
             cases.append((f"prior/{shrink:g}", w, c))
+    for _ in range(n_random):  # near-certain orderings, as in the posterior of separated data
+        c = rng.integers(0, 2, d).astype(float)
+        w = -scale * np.exp(rng.uniform(0.0, math.log(100.0), d))
+        cases.append(("separating", w, c))
     if posterior_w is not None:
         for w, c in zip(posterior_w, posterior_c):
             cases.append(("posterior", np.asarray(w, float), np.asarray(c, float)))
@@ -355,10 +360,10 @@ def run_numpyro(dataset: pbicrl.Dataset, *, chains: int = 4, warmup: int = 1000,
     mcmc = MCMC(kernel, num_warmup=warmup, num_samples=samples, num_chains=chains, chain_method=chain_method,
                 progress_bar=progress_bar)
     with _CompileClock() as clock:
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         mcmc.run(jax.random.PRNGKey(seed))
         jax.block_until_ready(mcmc.get_samples())
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     compile_s = clock.seconds
     sampling_s = wall - compile_s
     smp = mcmc.get_samples(group_by_chain=True)
@@ -369,6 +374,9 @@ def run_numpyro(dataset: pbicrl.Dataset, *, chains: int = 4, warmup: int = 1000,
     iters = chains * (warmup + samples)
     out = {"chains": chains, "warmup": warmup, "samples": samples, "chain_method": chain_method, "seed": seed,
            "progress_bar": progress_bar, "wall_s": wall, "compile_s": compile_s, "sampling_s": sampling_s,
+           # CPU seconds of the process (all threads) over the whole run, compile included: on a shared machine
+           # wall / CPU says how much of a core the run got
+           "process_cpu_s": cpu,
            "seconds_per_1000_iterations_per_chain": sampling_s / iters * 1000.0,
            **diag,
            "effective_draws_per_s": (diag["min_ess"] / sampling_s) if diag["min_ess"] else None,
@@ -393,6 +401,14 @@ def _versions() -> dict[str, str]:
     return {"numpyro": numpyro.__version__, "jax": jax.__version__, "jaxlib": jaxlib.__version__,
             "arviz": arviz.__version__, "numpy": np.__version__, "pbicrl": pbicrl.__version__,
             "python": platform.python_version(), "cpu_count": str(os.cpu_count())}
+
+
+def _loadavg() -> list[float] | None:
+    """1, 5 and 15 minute load averages (other jobs share the machine), where the OS reports them."""
+    try:
+        return [float(x) for x in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None
 
 
 def _write_json(path: Path, obj: Any) -> None:
@@ -420,7 +436,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--json", type=Path, default=None, help="write the results here (atomically)")
     args = ap.parse_args(argv)
     _require_jax()
-    report: dict[str, Any] = {"versions": _versions(), "command": " ".join(sys.argv), "runs": {}}
+    report: dict[str, Any] = {"versions": _versions(), "command": " ".join(sys.argv), "runs": {},
+                              "loadavg_at_start": _loadavg()}
     for name in args.data:
         ds = pbicrl.load_dataset(name)
         entry: dict[str, Any] = {"n_trajectories": int(ds.n_trajectories), "n_features": int(ds.n_features),
@@ -445,6 +462,7 @@ def main(argv: list[str] | None = None) -> None:
             ver = verify(ds, seed=args.seed, **kw)
             entry["verify"] = {k: v for k, v in ver.items() if k != "cases"}
             print(f"   verify: {json.dumps(entry['verify'])}")
+        entry["loadavg_after"] = _loadavg()
         report["runs"][name] = entry
         if args.json is not None:  # after every dataset: a long run keeps what it measured
             _write_json(args.json, report)
