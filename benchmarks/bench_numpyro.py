@@ -21,7 +21,7 @@ Quadrature (float64). In :math:`s = \\log t` the integrand is
 :math:`x_i = a_i - \\log\\Lambda_k`; :math:`g` is concave with its mode in :math:`[0, \\log(n_k + 1)]`. Per evaluation:
 a fixed number of safeguarded Newton steps find the mode :math:`s_0` and the curvature there
 (:math:`\\sigma = (-g''(s_0))^{-1/2}`), both under ``stop_gradient``; then a fixed trapezoid rule of
-``NODES`` nodes :math:`s = s_0 + \\sigma\\,m(u)` on a fixed :math:`u` grid, with
+261 nodes (``U_LEFT``, ``U_RIGHT``, ``U_STEP``) :math:`s = s_0 + \\sigma\\,m(u)` on a fixed :math:`u` grid, with
 :math:`m(u) = u + c\\,(1 - e^{-\\gamma u})/\\gamma` stretching the slowly decaying left tail exponentially.
 Gradients flow through the integrand values only, i.e. they are the exact gradients of the quadrature rule
 with the nodes held where they are (the rule's value does not depend on where the nodes sit, to its accuracy).
@@ -65,7 +65,7 @@ import pbicrl
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.priors import WeightPrior
 
-__all__ = ["GroupedPL", "build_model", "verify", "run_numpyro", "main"]
+__all__ = ["GroupedPL", "build_model", "prior_scales", "verify", "summarise", "run_numpyro", "main"]
 
 INSTALL_HINT = 'NumPyro, JAX and ArviZ are needed for this benchmark: pip install "pbicrl[bench]"'
 
