@@ -45,6 +45,7 @@ def _worker(row: str, data: str, iterations: int, seed: int) -> dict[str, Any]:
     spec = importlib.util.spec_from_file_location("_convergence", os.path.join(SRC, "pbicrl", "inference",
                                                                                "convergence.py"))
     conv_mod = importlib.util.module_from_spec(spec)
+    sys.modules["_convergence"] = conv_mod  # dataclasses look the module up
     spec.loader.exec_module(conv_mod)  # type: ignore[union-attr]
     check_convergence, reported_quantities = conv_mod.check_convergence, conv_mod.reported_quantities
 
