@@ -167,12 +167,15 @@ def _cmd_import_table(args: argparse.Namespace) -> int:
 
 
 def _cmd_import_minari(args: argparse.Namespace) -> int:
-    from pbicrl.envs.minari_io import require_minari
+    from pbicrl.envs.minari_io import load_minari, require_minari
     from pbicrl.io import from_minari, load_feature_function
 
     groups_file = Path(args.groups) if args.groups and args.groups.endswith(".json") else _spec_file(args.groups)
     _check_out(args.out, args.overwrite, [_spec_file(args.features), groups_file])
     require_minari()  # before any user code runs: executing a feature file is pointless without minari
+    # the dataset too: a typo in its id must not run the feature file first (the one place pbicrl runs a
+    # user's code on purpose, with --groups module:function and a sweep's kind = "module:function")
+    dataset = load_minari(args.dataset_id, args.root)
     fn = load_feature_function(args.features) if args.features else None
     groups: Any = None
     if args.groups:
@@ -189,7 +192,7 @@ def _cmd_import_minari(args: argparse.Namespace) -> int:
         else:
             groups = load_feature_function(args.groups, option="--groups")
     names = [c.strip() for c in args.feature_names.split(",")] if args.feature_names else None
-    ds = from_minari(args.dataset_id, fn, groups=groups, root=args.root, feature_names=names,
+    ds = from_minari(dataset, fn, groups=groups, root=args.root, feature_names=names,
                      nominal_weights=args.nominal_weights, states=not args.no_states, actions=not args.no_actions)
     ds.save(args.out, overwrite=args.overwrite)
     print(f"wrote {args.out}: {ds}")
