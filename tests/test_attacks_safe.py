@@ -187,3 +187,271 @@ def test_a_feature_file_runs_only_after_the_dataset_is_found(tmp_path, capsys):
                             str(tmp_path / "root"), "--out", str(tmp_path / "o.npz")])
     assert rc == 2 and "nope/nothing-v0" in err, err
     assert not marker.exists(), "the feature file ran before the dataset was looked up"
+
+
+# --------------------------------------------------------------------------------- 2-4. data loss
+@pytest.fixture(scope="module")
+def demo_npz(tmp_path_factory) -> Path:
+    from pbicrl.inference.synthetic import make_problem
+
+    p = tmp_path_factory.mktemp("demo") / "demo.npz"
+    make_problem(8, labels="violations", violation_rate=0.4, seed=3).dataset.save(p)
+    return p
+
+
+def _digest(d: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()}
+
+
+QUICK = ["--iterations", "300", "--chains", "1", "--no-progress"]
+
+
+def test_overwrite_replaces_only_a_run_pbicrl_wrote_and_never_an_input(demo_npz, tmp_path, capsys):
+    run = tmp_path / "runA"
+    assert main(["infer", str(demo_npz), "--out", str(run), *QUICK]) == 0
+    capsys.readouterr()
+    assert main(["infer", str(demo_npz), "--out", str(run), "--overwrite", *QUICK]) == 0  # its own output: fine
+    capsys.readouterr()
+    # the labelling page's layout: the dataset inside the run it is inferred into
+    (run / "data.npz").write_bytes(demo_npz.read_bytes())
+    before = _digest(run)
+    rc, err = _cli(capsys, ["infer", str(run / "data.npz"), "--out", str(run), "--overwrite", *QUICK])
+    assert rc == 2 and "input" in err and "data.npz" in err, err
+    assert _digest(run) == before
+    # a --config inside the output
+    (run / "cfg.toml").write_text("iterations = 300\nchains = 1\n")
+    rc, err = _cli(capsys, ["infer", str(demo_npz), "--config", str(run / "cfg.toml"), "--out", str(run),
+                            "--overwrite", "--no-progress"])
+    assert rc == 2 and "cfg.toml" in err, err
+    rc, err = _cli(capsys, ["tune-margins", str(run / "data.npz"), "--relation", "1", "--out", str(run),
+                            "--overwrite", "--iterations", "200", "--no-progress"])
+    assert rc == 2 and "input" in err, err
+    assert (run / "data.npz").read_bytes() == demo_npz.read_bytes() and (run / "cfg.toml").is_file()
+    # a run directory with a file pbicrl did not write (legacy, no marker, and with a marker)
+    legacy = tmp_path / "legacy"
+    legacy.mkdir()
+    for name in ("summary.json", "chains.npz"):
+        (legacy / name).write_bytes((run / name).read_bytes())
+    (legacy / "thesis.tex").write_text("\\chapter{}")
+    (run / "notes.txt").write_text("mine")
+    for target, extra in ((legacy, "thesis.tex"), (run, "notes.txt")):
+        rc, err = _cli(capsys, ["infer", str(demo_npz), "--out", str(target), "--overwrite", *QUICK])
+        assert rc == 2 and extra in err and "did not write" in err, err
+        assert (target / extra).is_file()
+    # a directory of another kind (what train-safe writes) is not a run
+    safe = tmp_path / "safe"
+    safe.mkdir()
+    for name in ("policy.pt", "checkpoint.pt", "budget.json", "summary.json"):
+        (safe / name).write_text("x")
+    rc, err = _cli(capsys, ["infer", str(demo_npz), "--out", str(safe), "--overwrite", *QUICK])
+    assert rc == 2 and sorted(p.name for p in safe.iterdir()) == ["budget.json", "checkpoint.pt", "policy.pt",
+                                                                  "summary.json"], err
+
+
+def test_figures_written_into_a_run_stay_replaceable_with_it(demo_npz, tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    run = tmp_path / "run"
+    assert main(["infer", str(demo_npz), "--out", str(run), *QUICK]) == 0
+    assert main(["plot", str(run)]) == 0
+    rc, err = _cli(capsys, ["plot", str(run)])  # the figures exist now: replaced only with --overwrite
+    assert rc == 2 and "trace.png" in err and "--overwrite" in err, err
+    assert main(["plot", str(run), "--overwrite"]) == 0
+    assert main(["infer", str(demo_npz), "--out", str(run), "--overwrite", *QUICK]) == 0
+    assert not (run / "plots").exists()
+    other = tmp_path / "figs"
+    other.mkdir()
+    (other / "trace.png").write_bytes(b"my own figure")
+    rc, err = _cli(capsys, ["plot", str(run), "--out", str(other)])
+    assert rc == 2 and (other / "trace.png").read_bytes() == b"my own figure", err
+
+
+def test_export_never_overwrites_the_runs_dataset(demo_npz, tmp_path, capsys):
+    pytest.importorskip("arviz")
+    run = tmp_path / "run"
+    data = tmp_path / "data.npz"
+    data.write_bytes(demo_npz.read_bytes())
+    assert main(["infer", str(data), "--out", str(run), *QUICK]) == 0
+    capsys.readouterr()
+    for argv in (["--netcdf", str(data), "--overwrite"], ["--netcdf", str(data), "--data", str(data), "--overwrite"]):
+        rc, err = _cli(capsys, ["export", str(run), *argv])
+        assert rc == 2 and "input" in err, err
+    assert data.read_bytes() == demo_npz.read_bytes()
+
+
+def test_label_export_never_replaces_its_pool_or_another_file_unasked(demo_npz, tmp_path, capsys):
+    from pbicrl.inference.data import load_dataset
+
+    pool = tmp_path / "pool.npz"
+    pool.write_bytes(demo_npz.read_bytes())
+    for argv in ([], ["--overwrite"]):
+        rc, err = _cli(capsys, ["label", str(pool), "--export", str(pool), *argv])
+        assert rc == 2 and "input" in err, err
+    assert pool.read_bytes() == demo_npz.read_bytes()
+    notes = tmp_path / "notes.npz"
+    notes.write_text("my notes")
+    rc, err = _cli(capsys, ["label", str(pool), "--export", str(notes)])
+    assert rc == 2 and "--overwrite" in err and notes.read_text() == "my notes", err
+    assert main(["label", str(pool), "--export", str(notes), "--overwrite"]) == 0
+    assert load_dataset(notes).n_trajectories > 0
+
+
+def test_envs_writers_replace_a_file_only_with_overwrite(tmp_path, capsys):
+    pytest.importorskip("gymnasium")
+    out = tmp_path / "grid.npz"
+    out.write_text("precious")
+    rc, err = _cli(capsys, ["envs", "grid", "--out", str(out)])
+    assert rc == 2 and "--overwrite" in err and out.read_text() == "precious", err
+    assert main(["envs", "grid", "--out", str(out), "--overwrite"]) == 0
+    report = tmp_path / "d.json"
+    report.write_text("precious")
+    rc, err = _cli(capsys, ["envs", "demos", "--env", "point_mass", "-n", "1", "--max-episodes", "1",
+                            "--out", str(tmp_path / "d.npz")])
+    assert rc == 2 and "d.json" in err and report.read_text() == "precious", err
+    rc, err = _cli(capsys, ["envs", "minari-to-npz", "--id", "x/y-v0", "--out", str(out)])
+    assert rc == 2 and "--overwrite" in err, err
+    pol = tmp_path / "p.zip"
+    pol.write_text("policy")
+    rc, err = _cli(capsys, ["envs", "demos-wall", "--env", "ant", "--good-policy", str(pol), "--violating-policy",
+                            str(pol), "--out", str(pol), "--overwrite"])
+    assert rc == 2 and pol.read_text() == "policy", err
+
+
+# --------------------------------------------------------------------------------- 5-6. labelling server
+@pytest.fixture
+def label_client(tmp_path):
+    pytest.importorskip("starlette")
+    pytest.importorskip("httpx")
+    from starlette.testclient import TestClient
+
+    from pbicrl.inference.data import Dataset
+    from pbicrl.ui.server import create_app
+    from pbicrl.ui.session import LabelSession
+
+    rng = np.random.default_rng(0)
+    trajs = [rng.normal(size=(5, 2)) for _ in range(6)]
+    pool = tmp_path / "pool.npz"
+    Dataset.from_trajectories(trajs, np.zeros(6, dtype=int), states=[t.copy() for t in trajs],
+                              allow_unlabelled=True).save(pool)
+    session = LabelSession(pool, tmp_path / "labelled.npz")
+    with TestClient(create_app(session), base_url="http://127.0.0.1") as c:
+        yield c, session
+
+
+def _post(client, path: str, body: bytes | str, **headers: str):
+    return client.post(path, content=body, headers={"Content-Type": "application/json", **headers})
+
+
+def test_label_server_refuses_deep_huge_and_foreign_requests_with_4xx(label_client, tmp_path):
+    client, session = label_client
+    rev = session.revision
+    r = _post(client, "/api/assign", "[" * 50_000 + "]" * 50_000)
+    assert r.status_code == 400 and "nested" in r.json()["error"], r.text
+    r = _post(client, "/api/assign", '{"revision": %d, "ids": [0], "group": 1, "x": %s}' % (rev, "[" * 40 + "]" * 40))
+    assert r.status_code == 400 and "nested" in r.json()["error"], r.text
+    for path, body in (("/api/gaps", '{"revision": %d, "gap_relation": [%d]}' % (rev, 10**30)),
+                       ("/api/infer", '{"margins": [%d]}' % 10**30),
+                       ("/api/assign", '{"revision": %d, "ids": [0], "group": %d}' % (rev, 2**64))):
+        r = _post(client, path, body)
+        assert r.status_code == 400 and "out of range" in r.json()["error"], (path, r.text)
+    r = _post(client, "/api/gaps", '{"revision": %d, "gap_relation": [NaN]}' % rev)
+    assert r.status_code == 400, r.text
+    # a chunked body (no Content-Length) is counted while it streams in
+    from pbicrl.ui.server import MAX_BODY_BYTES
+
+    def chunks():
+        for _ in range(MAX_BODY_BYTES // 65536 + 2):
+            yield b" " * 65536
+
+    r = client.post("/api/assign", content=chunks(), headers={"Content-Type": "application/json"})
+    assert r.status_code == 413, r.text
+    # a page elsewhere (Origin) or the test client's default host
+    r = _post(client, "/api/assign", '{"revision": %d, "ids": [0], "group": 1}' % rev, Origin="http://evil.example")
+    assert r.status_code == 403 and "origin" in r.json()["error"], r.text
+    assert client.get("/api/state", headers={"host": "testserver"}).status_code == 400
+    assert session.revision == rev and not (tmp_path / "labelled.npz").exists()
+    r = _post(client, "/api/assign", '{"revision": %d, "ids": [0], "group": 1}' % rev, Origin="http://127.0.0.1")
+    assert r.status_code == 200, r.text
+
+
+def test_label_on_a_public_address_needs_an_allow_list(tmp_path, capsys):
+    pytest.importorskip("starlette")
+    from pbicrl.ui.server import create_app
+    from pbicrl.ui.session import LabelSession
+
+    pool = tmp_path / "p.npz"
+    from pbicrl.inference.data import Dataset
+
+    Dataset.from_trajectories([np.zeros((2, 1))] * 2, [0, 0], states=[np.zeros((2, 1))] * 2,
+                              allow_unlabelled=True).save(pool)
+    rc, err = _cli(capsys, ["label", str(pool), "--out", str(tmp_path / "o.npz"), "--host", "0.0.0.0",
+                            "--no-browser"])
+    assert rc == 2 and "--allow-host" in err, err
+    session = LabelSession(pool, tmp_path / "o.npz")
+    with pytest.raises(ValueError, match="allow_host"):
+        create_app(session, host="0.0.0.0")
+    from starlette.testclient import TestClient
+
+    with TestClient(create_app(session, host="0.0.0.0", allow_hosts=["lab.example"]),
+                    base_url="http://lab.example") as c:
+        assert c.get("/api/state").status_code == 200
+        assert c.get("/api/state", headers={"host": "evil.example"}).status_code == 400
+        assert c.get("/api/state", headers={"host": "127.0.0.1"}).status_code == 400
+
+
+@pytest.mark.skipif(not os.path.exists("/proc"), reason="/proc")
+def test_the_inference_child_of_label_dies_with_its_parent(tmp_path):
+    """SIGKILL of the labelling server (here: a process holding an InferenceJob) ends the inference child
+    and leaves no snapshot folder."""
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+    import time
+
+    from pbicrl.inference.synthetic import make_problem
+
+    data = tmp_path / "d.npz"
+    make_problem(8, labels="violations", seed=1).dataset.save(data)
+    snap_dir = Path(__import__("tempfile").mkdtemp(prefix="pbicrl-label-999999999-"))  # a killed server's
+    code = textwrap.dedent(f"""
+        import os, shutil, sys, tempfile, time
+        from pathlib import Path
+        from pbicrl.ui.inference import InferenceJob, InferenceSettings
+        snap = Path(tempfile.mkdtemp(prefix=f"pbicrl-label-{{os.getpid()}}-")) / "labelling.npz"
+        shutil.copy({str(data)!r}, snap)
+        job = InferenceJob()
+        job.start(snap, Path({str(tmp_path / 'x.run')!r}), InferenceSettings(iterations=10**8, chains=1,
+                  figures=False), 0)
+        print(job._proc.pid, snap.parent, flush=True)
+        while job.snapshot()["phase"] in ("starting", "preparing"):
+            time.sleep(0.2)
+        print("sampling", flush=True)
+        time.sleep(600)
+    """)
+    import pbicrl
+
+    env = {**os.environ, "PYTHONPATH": str(Path(pbicrl.__file__).parents[1])}
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        child_pid, snap = parent.stdout.readline().split()
+        assert parent.stdout.readline().strip() == "sampling"
+        child_pid = int(child_pid)
+        assert Path(f"/proc/{child_pid}").exists()
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.time() + 20
+    while time.time() < deadline and Path(f"/proc/{child_pid}").exists():
+        status = Path(f"/proc/{child_pid}/stat").read_text() if Path(f"/proc/{child_pid}/stat").exists() else ""
+        if status and status[status.rindex(")") + 2] in "ZX":
+            break
+        time.sleep(0.2)
+    alive = Path(f"/proc/{child_pid}/stat").exists() and Path(f"/proc/{child_pid}/stat").read_text().split(")")[-1].split()[0] not in "ZX"
+    if alive:
+        os.kill(child_pid, signal.SIGKILL)
+    assert not alive, "the inference child outlived the killed server"
+    assert not Path(snap).exists()  # the child removed the snapshot it had read
+    from pbicrl.ui.server import _clean_stale_snapshots
+
+    _clean_stale_snapshots()
+    assert not snap_dir.exists()  # a dead server's folder is removed by the next one

@@ -124,9 +124,11 @@ def _cmd_infer(args: argparse.Namespace) -> int:
 
     cfg = _config_from_args(args)
     data = resolve_dataset_path(args.data)
-    check_out_dir(args.out, overwrite=args.overwrite, claim=True)  # before sampling; claimed until written
+    inputs = [data, args.config]
     if args.out.resolve() == data.resolve():
         raise FileExistsError(f"out: {args.out} is the input dataset; choose another directory")
+    # before sampling; claimed until written
+    check_out_dir(args.out, overwrite=args.overwrite, claim=True, inputs=inputs)
     ds = load_dataset(data)
     post = infer_from_config(ds, cfg, progress=not args.no_progress)
     post.extra["data"]["path"] = str(data)
@@ -139,7 +141,7 @@ def _cmd_infer(args: argparse.Namespace) -> int:
         res = cross_validate(ds, args.check, lambda d: infer_from_config(d, cfg, progress=False), seed=cfg.seed)
         extra_json["check.json"] = res.to_dict()
         post.extra["check"] = {k: v for k, v in res.to_dict().items() if k != "folds"}
-    post.save(args.out, overwrite=args.overwrite, extra_json=extra_json)
+    post.save(args.out, overwrite=args.overwrite, extra_json=extra_json, inputs=inputs)
     if args.json:
         print(json.dumps(post.summary(), indent=2, allow_nan=False))
     else:
@@ -253,8 +255,8 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     cfg = cfg.updated(iterations=args.iterations, chains=args.chains, sampler=args.sampler, seed=args.seed)
     from pbicrl.inference.results import check_out_dir
 
-    check_out_dir(args.out, overwrite=args.overwrite, claim=True)
     data = resolve_dataset_path(args.data)
+    check_out_dir(args.out, overwrite=args.overwrite, claim=True, inputs=[data, args.config])
     ds = load_dataset(data)
     from dataclasses import replace
 
@@ -268,7 +270,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     arrays = {"indicators": post.indicators, "penalty_weights": post.penalty_weights, "parameters": post.parameters,
               "log_likelihood": post.log_likelihood}
     write_run_dir(args.out, {"summary.json": summary, "tuning.json": res.to_dict()}, {"chains.npz": arrays},
-                  overwrite=args.overwrite)
+                  overwrite=args.overwrite, inputs=[data, args.config])
     print(f"chosen margins: {res.margins.as_dict()}")
     print(f"gap relation asked {np.round(res.relation_target, 3).tolist()}, achieved "
           f"{np.round(res.relation_achieved, 3).tolist()} (error {res.error:.4f}; {len(res.table)} candidates)")
