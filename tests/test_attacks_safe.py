@@ -455,3 +455,101 @@ def test_the_inference_child_of_label_dies_with_its_parent(tmp_path):
 
     _clean_stale_snapshots()
     assert not snap_dir.exists()  # a dead server's folder is removed by the next one
+
+
+# --------------------------------------------------------------------------------- 7. results that are not results
+def test_nan_chains_are_refused_by_every_reader(demo_npz, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["infer", str(demo_npz), "--out", str(run), *QUICK]) == 0
+    capsys.readouterr()
+    with np.load(run / "chains.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["penalty_weights"] = np.full_like(arrays["penalty_weights"], np.nan)
+    np.savez(run / "chains.npz", **arrays)
+    commands = [["diagnose", str(run)], ["check", str(run), "--data", str(demo_npz)],
+                ["suggest", str(run), "--pool", str(demo_npz)], ["export", str(run), "--netcdf", str(tmp_path / "p.nc")],
+                ["plot", str(run), "--out", str(tmp_path / "figs")]]
+    for argv in commands:
+        rc, err = _cli(capsys, argv)
+        assert rc == 2 and "penalty_weights" in err and "NaN" in err, (argv, err)
+    assert not (tmp_path / "p.nc").exists() and not (tmp_path / "figs").exists()
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--beta", "1e308"], "beta"), (["--beta", "1e-300"], "beta"), (["--margins", "0,1e308"], "out of range"),
+    (["--thin", "1000000000"], "draw"), (["--iterations", "1"], "draw"),
+])
+def test_settings_that_give_no_posterior_are_refused_up_front(demo_npz, tmp_path, capsys, argv, needle):
+    args = ["--iterations", "300", "--chains", "1", "--no-progress", *argv]
+    rc, err = _cli(capsys, ["infer", str(demo_npz), "--out", str(tmp_path / "r"), *args])
+    assert rc == 2 and needle in err, err
+    assert not (tmp_path / "r").exists()
+
+
+def test_identify_refuses_a_beta_that_overflows(capsys):
+    rc, err = _cli(capsys, ["identify", "point_mass", "--beta", "1e308"])
+    assert rc == 2 and "beta" in err, err
+
+
+def test_an_infer_whose_draws_are_nan_exits_non_zero_and_writes_nothing(demo_npz, tmp_path, capsys, monkeypatch):
+    import pbicrl.api as api
+
+    real = api.infer_from_config
+
+    def nan_draws(*a, **k):
+        post = real(*a, **k)
+        post.penalty_weights[...] = np.nan
+        return post
+
+    monkeypatch.setattr(api, "infer_from_config", nan_draws)
+    rc, err = _cli(capsys, ["infer", str(demo_npz), "--out", str(tmp_path / "r"), *QUICK])
+    assert rc == 2 and "no usable draws" in err and not (tmp_path / "r").exists(), err
+
+
+# --------------------------------------------------------------------------------- 8. sweep size
+def test_a_sweep_grid_is_sized_before_it_is_expanded(tmp_path, capsys):
+    import resource
+    import subprocess
+    import sys
+
+    grid = "\n".join(f"k{i} = [{', '.join(str(v) for v in range(60))}]" for i in range(8))
+    cfg = tmp_path / "explode.toml"
+    cfg.write_text(f'[base]\nkind = "infer"\ndata = "example"\n[grid]\n{grid}\n')
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
+
+    proc = subprocess.run([sys.executable, "-m", "pbicrl.cli", "sweep", str(cfg), "--dry-run"], capture_output=True,
+                          text=True, timeout=120, preexec_fn=limit)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and "MemoryError" not in proc.stderr, proc.stderr
+    assert "167,961,600,000,000 runs" in proc.stderr, proc.stderr
+
+
+# --------------------------------------------------------------------------------- 10. tracebacks and silent ignores
+def test_a_path_longer_than_the_os_allows_is_a_clean_error(tmp_path, capsys):
+    long = str(tmp_path / ("a" * 300 + ".npz"))
+    for argv in (["info", long], ["identify", long], ["infer", long, "--out", str(tmp_path / "o")]):
+        rc, err = _cli(capsys, argv)
+        assert rc == 2 and "cannot be looked up" in err, (argv, err)
+
+
+def test_reproduce_checks_its_data_overrides_before_running(demo_npz, tmp_path, capsys):
+    rc, err = _cli(capsys, ["reproduce", "point-mass", "--data", f"nope={demo_npz}", "--out", str(tmp_path / "r")])
+    assert rc == 2 and "nope" in err, err
+    rc, err = _cli(capsys, ["reproduce", "point-mass", "--data", f"point_mass={demo_npz}", "--out",
+                            str(tmp_path / "r")])
+    assert rc == 2 and "point_mass" in err and "features" in err, err
+    assert not (tmp_path / "r" / "runs").exists()
+
+
+def test_tune_margins_with_an_empty_grid_is_an_error(demo_npz, tmp_path, capsys):
+    rc, err = _cli(capsys, ["tune-margins", str(demo_npz), "--relation", "1", "--grid", "", "--out",
+                            str(tmp_path / "t")])
+    assert rc == 2 and "--grid" in err, err
+
+
+def test_malformed_constraint_values_name_the_constraint(demo_npz, tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[[constraints]]\nfamily = "ball"\nname = "disc"\ndims = [0, 1]\nbounds = [["x", 1], [0, 1], [0, 1]]\n')
+    rc, err = _cli(capsys, ["infer", str(demo_npz), "--config", str(cfg), "--out", str(tmp_path / "o"), *QUICK])
+    assert rc == 2 and "disc" in err and "bounds" in err, err

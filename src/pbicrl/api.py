@@ -18,7 +18,7 @@ from pbicrl.inference.priors import IndicatorPrior, WeightPrior
 from pbicrl.inference.results import Posterior
 from pbicrl.inference.samplers import SamplerSettings, sample
 
-__all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config"]
+__all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config", "MIN_DRAWS"]
 
 
 def load_run(run_dir: str | os.PathLike[str], *, issue_warnings: bool = True) -> Posterior:
@@ -68,6 +68,8 @@ def resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None,
 
 
 _D = InferConfig()  # the defaults of every setting (InferConfig is their one source)
+MIN_DRAWS = 2
+"""Fewest kept draws per chain :func:`infer` accepts: one draw gives P(c=1) of 0 or 1 and no convergence check."""
 _PRIOR_SETTINGS = ("prior", "prior_low", "prior_high", "prior_mean", "prior_scale", "prior_abs_scale", "prior_df",
                    "penalty_sign")
 
@@ -232,6 +234,10 @@ def infer(
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
         candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta,
         p_joint=float(p_joint))
+    if settings.n_draws < MIN_DRAWS:  # before identification and sampling: one draw is no posterior
+        raise ConfigError(f"iterations: {int(iterations):,} iterations with burn_in {settings.burn_in_:,} and thin "
+                          f"{settings.thin_:,} keep {settings.n_draws} draw(s) per chain; at least {MIN_DRAWS} are "
+                          "needed for a posterior and its convergence checks (more iterations or a smaller thin)")
     from pbicrl.analysis.identify import identify
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,

@@ -793,7 +793,12 @@ def identify(
         raise IdentifyError(f"dataset: expected a pbicrl.inference.data.Dataset, got {type(dataset).__name__}")
     if penalty_sign not in ("negative", "any"):
         raise IdentifyError(f"penalty_sign: expected 'negative' or 'any', got {penalty_sign!r}")
-    beta = _check_scalar("beta", beta, 0.0, math.inf, lo_open=True, hi_open=True)
+    from pbicrl.inference.likelihood import check_beta
+
+    try:
+        beta = check_beta(beta)
+    except ValueError as exc:
+        raise IdentifyError(str(exc)) from None
     alpha = _check_scalar("alpha", alpha, 0.0, 0.5, lo_open=True, hi_open=False)
     d = dataset.n_features
     names = dataset.feature_names

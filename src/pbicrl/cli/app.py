@@ -116,6 +116,17 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         candidates=None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()])
 
 
+def _require_usable_draws(post: Any) -> None:
+    """A posterior whose draws hold NaN or infinite values is an error (exit 2, nothing written), not a result."""
+    for key in ("penalty_weights", "log_likelihood"):
+        arr = np.asarray(getattr(post, key), dtype=np.float64)
+        bad = int(arr.size - np.count_nonzero(np.isfinite(arr)))
+        if bad:
+            raise ValueError(f"{key}: {bad:,} of {arr.size:,} values of the draws are NaN or infinite, so the run has "
+                             "no usable draws and nothing was written; use a smaller beta or margins, or rescale "
+                             "the features")
+
+
 def _cmd_infer(args: argparse.Namespace) -> int:
     from pbicrl.api import infer_from_config
     from pbicrl.inference.data import load_dataset
@@ -131,6 +142,7 @@ def _cmd_infer(args: argparse.Namespace) -> int:
     check_out_dir(args.out, overwrite=args.overwrite, claim=True, inputs=inputs)
     ds = load_dataset(data)
     post = infer_from_config(ds, cfg, progress=not args.no_progress)
+    _require_usable_draws(post)
     post.extra["data"]["path"] = str(data)
     extra_json = {}
     if args.check:
@@ -255,15 +267,19 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     cfg = cfg.updated(iterations=args.iterations, chains=args.chains, sampler=args.sampler, seed=args.seed)
     from pbicrl.inference.results import check_out_dir
 
+    if args.grid is not None and len(args.grid) == 0:
+        raise ValueError("--grid: no values; give the gaps to try, e.g. --grid 0,0.5,1,2 (or leave it out for the "
+                         "default)")
     data = resolve_dataset_path(args.data)
     check_out_dir(args.out, overwrite=args.overwrite, claim=True, inputs=[data, args.config])
     ds = load_dataset(data)
     from dataclasses import replace
 
-    res = tune_margins(ds, args.relation, gap_grid=args.grid or DEFAULT_GAP_GRID, estimator=args.estimator,
+    res = tune_margins(ds, args.relation, gap_grid=DEFAULT_GAP_GRID if args.grid is None else args.grid, estimator=args.estimator,
                        progress=not args.no_progress,
                        run=lambda m: infer_from_config(ds, replace(cfg, margins=m.matrix.tolist()), progress=False))
     post = res.posterior
+    _require_usable_draws(post)
     post.extra.setdefault("data", {})["path"] = str(data)
     post.extra["margin_tuning"] = res.to_dict()
     summary = post.summary()

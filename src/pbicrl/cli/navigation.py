@@ -62,7 +62,7 @@ def shipped_policy(env: str, role: str) -> Path:
     return DATA_DIR / "policies" / f"{env}_{role}.zip"
 
 
-def _npz(path: Path) -> Path:
+def npz_path(path: Path) -> Path:
     """The file ``Dataset.save`` writes for ``path`` (``.npz`` appended to another suffix)."""
     path = Path(path)
     return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz" if path.suffix else ".npz")
@@ -149,7 +149,7 @@ def _cmd_demos(args: argparse.Namespace) -> int:
         if p is not None and not Path(p).is_file():
             print(f"error: {name}: no such file {p} (train it with `python -m pbicrl.envs train`)", file=sys.stderr)
             return 2
-    out = _npz(args.out)
+    out = npz_path(args.out)
     check_outputs([out, out.with_suffix(".json")], args.overwrite, [good, bad])
     if args.paper_protocol:
         defaults = PAPER_PROTOCOL[args.env]
@@ -196,7 +196,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 def _cmd_grid(args: argparse.Namespace) -> int:
     from pbicrl.envs.grid import grid_dataset
 
-    check_outputs([_npz(args.out)], args.overwrite)
+    check_outputs([npz_path(args.out)], args.overwrite)
     print(grid_dataset().save(args.out))
     return 0
 
@@ -205,7 +205,7 @@ def _cmd_minari_to_npz(args: argparse.Namespace) -> int:
     from pbicrl.envs.minari_io import minari_to_dataset
     from pbicrl.envs.regions import FEATURE_NAMES
 
-    check_outputs([_npz(args.out)], args.overwrite)
+    check_outputs([npz_path(args.out)], args.overwrite)
     nominal = None
     if args.env == "point_mass":
         from pbicrl.envs.point_mass import POINT_MASS_TASK

@@ -77,13 +77,13 @@ def _cmd_train_wall(args: argparse.Namespace) -> int:
 
 
 def _cmd_demos_wall(args: argparse.Namespace) -> int:
-    from pbicrl.cli.navigation import _npz, check_outputs
+    from pbicrl.cli.navigation import npz_path, check_outputs
     from pbicrl.demonstrators.wall import generate_wall_demos
 
     inputs = [args.good_policy, args.violating_policy]
-    check_outputs([_npz(args.out)], args.overwrite, inputs)
-    check_outputs([args.report], args.overwrite, [*inputs, _npz(args.out)], field="--report")
-    args.out = _npz(args.out)
+    check_outputs([npz_path(args.out)], args.overwrite, inputs)
+    check_outputs([args.report], args.overwrite, [*inputs, npz_path(args.out)], field="--report")
+    args.out = npz_path(args.out)
     _, report = generate_wall_demos(args.env, args.good_policy, args.violating_policy, args.n, args.out,
                                     seed=args.seed, n_steps=args.steps, deterministic=args.deterministic,
                                     quantize=not args.no_quantize, max_attempts_factor=args.max_attempts_factor)

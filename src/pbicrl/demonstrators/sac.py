@@ -77,9 +77,9 @@ def _write_json_atomic(path: Path, obj: Any) -> None:
 
 def _is_policy_only(path: Path) -> bool:
     """True for a policy file (``policy.zip``), False for a whole model (``final_model.zip``)."""
-    from pbicrl.demonstrators.sac_files import MODEL_FORMAT, _peek_format
+    from pbicrl.demonstrators.sac_files import MODEL_FORMAT, file_format
 
-    return _peek_format(path) != MODEL_FORMAT
+    return file_format(path) != MODEL_FORMAT
 
 
 def _find_checkpoint(out_dir: Path) -> Path | None:

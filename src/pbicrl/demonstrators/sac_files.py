@@ -36,7 +36,7 @@ from pbicrl._atomic import atomic_path
 
 __all__ = ["SACFileError", "POLICY_FORMAT", "MODEL_FORMAT", "save_policy", "read_policy", "save_model",
            "read_model", "save_replay_buffer", "read_replay_buffer", "is_sb3_file", "convert_sb3_file",
-           "convert_sb3_checkpoint"]
+           "convert_sb3_checkpoint", "file_format", "read_buffer_arrays"]
 
 POLICY_FORMAT = "pbicrl-sac-policy"
 MODEL_FORMAT = "pbicrl-sac-model"
@@ -344,7 +344,7 @@ def read_policy(path: str | os.PathLike[str], device: str = "cpu", *, what: str 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{what}: no such file {path}")
-    fmt = MODEL_FORMAT if _peek_format(path) == MODEL_FORMAT else POLICY_FORMAT
+    fmt = MODEL_FORMAT if file_format(path) == MODEL_FORMAT else POLICY_FORMAT
     settings, weights = _read_archive(path, fmt, what)
     where = f"{what}: {path}"
     policy = _build_policy(settings.get("policy"), f"{where}: policy", device)
@@ -353,7 +353,8 @@ def read_policy(path: str | os.PathLike[str], device: str = "cpu", *, what: str 
     return policy
 
 
-def _peek_format(path: Path) -> Any:
+def file_format(path: str | os.PathLike[str]) -> Any:
+    """The ``format`` a pbicrl SAC file declares (``None`` for anything else); reads only its settings."""
     try:
         with zipfile.ZipFile(path) as zf:
             if zf.getinfo(_SETTINGS).file_size > _MAX_SETTINGS_BYTES:
@@ -550,11 +551,10 @@ def convert_sb3_file(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -
     **This runs the pickle in** ``src``: call it only on a file you trust (one you trained yourself). It is
     never called by pbicrl's commands; it exists to carry existing runs and policies over, once.
     """
-    from stable_baselines3.sac.policies import SACPolicy
-
-    from pbicrl.demonstrators.sac import require_rl
-
-    require_rl()
+    try:
+        from stable_baselines3.sac.policies import SACPolicy
+    except ImportError as exc:
+        raise ImportError(f"converting a Stable-Baselines3 file needs it ({exc}): pip install \"pbicrl[rl]\"") from exc
     src = Path(src)
     with zipfile.ZipFile(src) as zf:
         whole_model = "data" in zf.namelist()
