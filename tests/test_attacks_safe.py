@@ -553,3 +553,33 @@ def test_malformed_constraint_values_name_the_constraint(demo_npz, tmp_path, cap
     cfg.write_text('[[constraints]]\nfamily = "ball"\nname = "disc"\ndims = [0, 1]\nbounds = [["x", 1], [0, 1], [0, 1]]\n')
     rc, err = _cli(capsys, ["infer", str(demo_npz), "--config", str(cfg), "--out", str(tmp_path / "o"), *QUICK])
     assert rc == 2 and "disc" in err and "bounds" in err, err
+
+
+# --------------------------------------------------------------------------------- 9. identify with many features
+def _many_features(d: int, n: int = 90, length: int = 4, seed: int = 0):
+    from pbicrl.inference.data import Dataset
+
+    rng = np.random.default_rng(seed)
+    return Dataset(features=rng.random((n * length, d)), offsets=np.arange(n + 1) * length,
+                   group=np.repeat([1, 2, 3], n // 3), feature_names=tuple(f"f{j}" for j in range(d)),
+                   nominal_weights=np.zeros(d))
+
+
+def test_identify_needs_a_few_lps_not_one_per_feature_when_no_penalty_is_unbounded():
+    pytest.importorskip("scipy")
+    from pbicrl.analysis.identify import identify
+
+    res = identify(_many_features(60))
+    assert not res.separable and not any(f.unbounded for f in res.features)
+    assert res.n_lp <= 4, res.n_lp  # one recession LP per feature before: 61
+
+
+def test_identify_shows_progress_when_it_runs_long(monkeypatch, capsys):
+    pytest.importorskip("scipy")
+    import pbicrl.analysis.identify as ident
+
+    monkeypatch.setattr(ident, "_PROGRESS_DELAY_S", 0.0)
+    ident.identify(_many_features(8), progress=True)
+    assert "identify:" in capsys.readouterr().err
+    ident.identify(_many_features(8))
+    assert "identify:" not in capsys.readouterr().err

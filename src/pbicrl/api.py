@@ -242,7 +242,7 @@ def infer(
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
                      candidates=candidates, penalty_sign=wprior.sign if sampler not in ("paper", "authors") else "any",
-                     constraints=cset)
+                     constraints=cset, progress=bool(progress))
     post = sample(lik, settings, n_chains=chains, seed=seed, n_jobs=jobs, progress=progress,
                   feature_names=dataset.feature_names, constraints=cset, identified=ident)
     K = dataset.n_groups

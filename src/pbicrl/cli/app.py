@@ -187,7 +187,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
         cset = ConstraintSet(tuple(constraint_from_dict(c) for c in cfg.constraints), ds)
     res = identify(ds, nominal_weights=cfg.nominal_weights, beta=cfg.beta, margins=cfg.margins, alpha=cfg.alpha,
-                   candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset)  # type: ignore[arg-type]
+                   candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset,  # type: ignore[arg-type]
+                   progress=True)
     if args.json:
         print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
     else:
