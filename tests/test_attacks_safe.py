@@ -543,7 +543,7 @@ def test_reproduce_checks_its_data_overrides_before_running(demo_npz, tmp_path, 
 
 
 def test_tune_margins_with_an_empty_grid_is_an_error(demo_npz, tmp_path, capsys):
-    rc, err = _cli(capsys, ["tune-margins", str(demo_npz), "--relation", "1", "--grid", "", "--out",
+    rc, err = _cli(capsys, ["tune-margins", str(demo_npz), "--relation", "1,1", "--grid", "", "--out",
                             str(tmp_path / "t")])
     assert rc == 2 and "--grid" in err, err
 
