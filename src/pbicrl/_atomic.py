@@ -27,7 +27,8 @@ from typing import IO, Any
 __all__ = [
     "FILE_MODE", "DIR_MODE", "OutputExistsError", "OutputBusyError", "umask", "host_tag", "pid_alive",
     "temporary_prefix", "clean_stale_temporaries", "atomic_path", "atomic_file", "write_bytes", "write_text",
-    "write_json", "copy_file", "atomic_dir", "fsync_tree", "apply_mode",
+    "write_json", "copy_file", "atomic_dir", "fsync_tree", "apply_mode", "OUTPUT_MARKER", "mark_output",
+    "read_marker", "inputs_inside", "check_replaceable", "check_file_output",
 ]
 
 FILE_MODE = 0o666
@@ -321,3 +322,120 @@ def atomic_dir(target: str | os.PathLike[str], *, replace: bool = False) -> Iter
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+# ------------------------------------------------------------------------------------------ owned outputs
+OUTPUT_MARKER = ".pbicrl-output.json"
+"""File a directory pbicrl writes as one output holds: its kind and the entries pbicrl put there."""
+
+
+def mark_output(directory: str | os.PathLike[str], kind: str, entries: Any = None) -> Path:
+    """Record (or extend) ``directory``'s marker: it is a pbicrl output of ``kind`` holding ``entries``.
+
+    ``entries`` (names directly inside ``directory``) defaults to everything there now; an existing marker of
+    the same kind keeps its entries. The marker is what lets ``overwrite`` replace the directory later
+    (:func:`check_replaceable`).
+    """
+    d = Path(directory)
+    names = set(e.name for e in d.iterdir()) if entries is None else {str(e) for e in entries}
+    old = read_marker(d)
+    if old is not None and old[0] == kind:
+        names |= old[1]
+    names.discard(OUTPUT_MARKER)
+    return write_json(d / OUTPUT_MARKER, {"kind": kind, "entries": sorted(names)})
+
+
+def read_marker(directory: str | os.PathLike[str]) -> tuple[str, set[str]] | None:
+    """``(kind, entries)`` of ``directory``'s marker, or ``None`` without a readable one."""
+    p = Path(directory) / OUTPUT_MARKER
+    try:
+        if p.is_symlink() or not p.is_file() or p.stat().st_size > 1 << 20:
+            return None
+        obj = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    if (not isinstance(obj, dict) or not isinstance(obj.get("kind"), str) or not isinstance(obj.get("entries"), list)
+            or not all(isinstance(e, str) for e in obj["entries"])):
+        return None
+    return obj["kind"], set(obj["entries"])
+
+
+def inputs_inside(out: str | os.PathLike[str], inputs: Any) -> list[Path]:
+    """The ``inputs`` (paths; ``None`` skipped) that are ``out`` itself or lie inside it (links resolved)."""
+    root = Path(os.path.realpath(out))
+    found = []
+    for p in inputs or ():
+        if p is None:
+            continue
+        real = Path(os.path.realpath(p))
+        if real == root or root in real.parents:
+            found.append(Path(p))
+    return found
+
+
+def check_replaceable(out: str | os.PathLike[str], kind: str, *, field: str = "out_dir", inputs: Any = (),
+                      legacy: Callable[[Path], set[str] | None] | None = None) -> None:
+    """Refuse to replace ``out`` unless pbicrl wrote it as output of ``kind`` and it holds only what pbicrl wrote.
+
+    ``out`` may be replaced when its marker (:func:`mark_output`) has this ``kind`` and every entry in it is
+    listed there, or, for a directory written before markers existed, when ``legacy(out)`` returns the set of
+    entries an earlier pbicrl wrote there and nothing else is present. An ``input`` inside ``out`` is never
+    replaced.
+
+    Raises
+    ------
+    FileExistsError
+        Naming ``field``, the directory and what stops the replacement.
+    """
+    out = Path(out)
+    inside = inputs_inside(out, inputs)
+    if inside:
+        raise FileExistsError(f"{field}: {out} holds this command's input {inside[0]}; replacing the directory "
+                              "would delete it: choose another directory")
+    if out.is_symlink() or not out.is_dir():
+        raise FileExistsError(f"{field}: {out} is a file, not a directory pbicrl wrote; overwrite replaces only those")
+    marker = read_marker(out)
+    if marker is not None:
+        if marker[0] != kind:
+            raise FileExistsError(f"{field}: {out} is a pbicrl {marker[0]} directory, not a {kind} directory; "
+                                  "overwrite replaces only output of the same kind")
+        allowed = marker[1] | {OUTPUT_MARKER}
+    else:
+        known = legacy(out) if legacy is not None else None
+        if known is None:
+            raise FileExistsError(f"{field}: {out} is a directory pbicrl did not write as a {kind} directory; "
+                                  "overwrite replaces only those: choose another directory")
+        allowed = known
+    foreign = sorted(e.name for e in out.iterdir() if e.name not in allowed)
+    if foreign:
+        listed = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+        raise FileExistsError(f"{field}: {out} also holds {listed}, which pbicrl did not write; overwrite never "
+                              "removes those: move them out or choose another directory")
+
+
+def check_file_output(path: str | os.PathLike[str], *, overwrite: bool = False, inputs: Any = (),
+                      field: str = "out") -> Path:
+    """The one rule for a file output: an existing file is replaced only with ``overwrite``, an input never.
+
+    Call it before any work, then write with ``atomic_path(path, overwrite=overwrite)`` (which re-checks).
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` exists and ``overwrite`` is false.
+    FileExistsError
+        ``path`` is one of ``inputs`` (the same file, links resolved), a directory or a symbolic link.
+    """
+    p = Path(path)
+    real = os.path.realpath(p)
+    for i in inputs or ():
+        if i is not None and (os.path.realpath(i) == real or (p.exists() and Path(i).exists()
+                                                               and os.path.samefile(p, i))):
+            raise FileExistsError(f"{field}: {p} is this command's input {i}; an input is never overwritten: "
+                                  "choose another file")
+    if p.is_symlink() or p.is_dir():
+        raise FileExistsError(f"{field}: {p} is a {'symbolic link' if p.is_symlink() else 'directory'}; "
+                              "give a file path")
+    if p.exists() and not overwrite:
+        raise OutputExistsError(field, p, "file")
+    return p

@@ -19,7 +19,7 @@ from pbicrl.inference.results import Posterior
 from pbicrl.inference.samplers import SamplerSettings, sample
 from pbicrl.inference.samplers.driver import StoppingRule
 
-__all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config"]
+__all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config", "MIN_DRAWS"]
 
 
 def load_run(run_dir: str | os.PathLike[str], *, issue_warnings: bool = True) -> Posterior:
@@ -69,6 +69,8 @@ def resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None,
 
 
 _D = InferConfig()  # the defaults of every setting (InferConfig is their one source)
+MIN_DRAWS = 2
+"""Fewest kept draws per chain :func:`infer` accepts: one draw gives P(c=1) of 0 or 1 and no convergence check."""
 _PRIOR_SETTINGS = ("prior", "prior_low", "prior_high", "prior_mean", "prior_scale", "prior_abs_scale", "prior_df",
                    "penalty_sign")
 
@@ -258,11 +260,16 @@ def infer(
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
         candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta,
         p_joint=float(p_joint))
+    if settings.n_draws < MIN_DRAWS:  # before identification and sampling: one draw is no posterior
+        raise ConfigError(f"iterations: {int(iterations):,} iterations with burn_in {settings.burn_in_:,} and thin "
+                          f"{settings.thin_:,} keep {settings.n_draws} draw(s) per chain; at least {MIN_DRAWS} are "
+                          "needed for a posterior and its convergence checks (more iterations or a smaller thin)")
     from pbicrl.analysis.identify import identify
 
     ident = identify(dataset, nominal_weights=lik.nominal_weights, beta=beta, margins=margins, alpha=alpha,
                      candidates=candidates, penalty_sign=wprior.sign if sampler not in ("paper", "authors") else "any",
-                     constraints=cset, preferences=lik.preferences, pairs_seed=int(pairs_seed))  # the pairs it uses
+                     constraints=cset, preferences=lik.preferences, pairs_seed=int(pairs_seed),  # the pairs it uses
+                     progress=bool(progress))
     stopping = None
     if auto:
         stopping = StoppingRule(target_ess=float(target_ess), target_rhat=float(target_rhat), max_time=float(max_time),

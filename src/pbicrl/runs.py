@@ -326,6 +326,12 @@ def _read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
         if len(owner) != len(pnames):
             heads = [n.rsplit(".", 1)[0] for n in pnames]
             owner = tuple(names.index(h) for h in heads) if all(h in names for h in heads) else ()
+    for key, arr in (("penalty_weights", wp), ("log_likelihood", ll), ("parameters", params)):
+        bad = 0 if arr is None else int(arr.size - np.count_nonzero(np.isfinite(arr)))
+        if bad:  # NaN draws: every figure, diagnostic, export or check of them would be a number without meaning
+            raise RunError(f"{cz}: field '{key}' holds {bad:,} NaN or infinite values: the run has no usable draws "
+                           "(the returns overflowed or the file was altered); rerun pbicrl infer with a beta and "
+                           "margins in range")
     if counts is not None and (counts.ndim != 2 or counts.shape[0] != ind.shape[0] or counts.shape[1] < 5):
         raise RunError(f"{cz}: 'counts' has shape {counts.shape}, expected ({ind.shape[0]}, 7)")
     for k, v in per_draw.items():

@@ -116,14 +116,13 @@ def test_deadline_finalises_policy_early_and_resume_extends(tmp_path):
 def test_warm_start_copies_networks(tmp_path):
     src = tmp_path / "src"
     train_sac(_pendulum, 150, src, seed=4, **TINY)
-    from stable_baselines3 import SAC
 
     dst = tmp_path / "dst"
     # zero training updates after the warm start: learning_starts > total steps
     train_sac(_pendulum, 50, dst, seed=5, init_from=src / "final_model.zip",
               **{**TINY, "learning_starts": 1000})
-    a = SAC.load(src / "final_model.zip").policy.state_dict()
-    b = SAC.load(dst / "final_model.zip").policy.state_dict()
+    a = load_policy(src / "final_model.zip").state_dict()
+    b = load_policy(dst / "final_model.zip").state_dict()
     for k in a:
         np.testing.assert_array_equal(a[k].numpy(), b[k].numpy())
     assert json.loads((dst / "budget.json").read_text())["done_steps"] == 50
@@ -170,21 +169,19 @@ def test_cli_parser_mounts_and_validates():
         build_parser().parse_args(["train-wall", "--env", "ant", "--mode", "good", "--steps", "0", "--out", "x"])
 
 
-def test_checkpoint_swap_is_atomic_follows_the_umask_and_a_killed_swap_is_undone(tmp_path):
+def test_checkpoint_swap_is_atomic_follows_the_umask_and_a_killed_swap_is_undone(tmp_path, monkeypatch):
     """Checkpoints are written with pbicrl._atomic: complete or absent, permissions of a plain mkdir/open under
     the umask, and a swap killed between its two renames leaves the previous checkpoint, put back on resume."""
     from pbicrl._atomic import temporary_prefix, umask
+    from pbicrl.demonstrators import sac_files
     from pbicrl.demonstrators.sac import _find_checkpoint, _save_checkpoint
 
-    class Model:  # what _save_checkpoint asks of an SB3 model
+    class Model:  # stands for an SB3 model; the writers below record its tag
         def __init__(self, tag):
             self.tag = tag
 
-        def save(self, path):
-            path.write_text(f"model {self.tag}")
-
-        def save_replay_buffer(self, path):
-            path.write_text(f"buffer {self.tag}")
+    monkeypatch.setattr(sac_files, "save_model", lambda m, path: path.write_text(f"model {m.tag}"))
+    monkeypatch.setattr(sac_files, "save_replay_buffer", lambda m, path: path.write_text(f"buffer {m.tag}"))
 
     out = tmp_path / "run"
     out.mkdir()
@@ -214,14 +211,14 @@ def test_checkpoint_swap_is_atomic_follows_the_umask_and_a_killed_swap_is_undone
 def test_prefill_fills_the_warm_start_buffer_with_the_loaded_policy_before_training(tmp_path):
     src = tmp_path / "src"
     train_sac(_pendulum, 150, src, seed=4, **TINY)
-    from stable_baselines3 import SAC
+    from pbicrl.demonstrators.sac_files import read_model, read_replay_buffer
 
     dst = tmp_path / "dst"
     # no gradient step (learning_starts > steps): the buffer holds the prefill, then the run's own steps
     train_sac(_pendulum, 50, dst, seed=5, init_from=src / "final_model.zip", prefill_steps=240,
               target_entropy=-3.0, **{**TINY, "learning_starts": 1000})
-    model = SAC.load(dst / "checkpoint" / "model.zip")
-    model.load_replay_buffer(dst / "checkpoint" / "replay_buffer.pkl")
+    model = read_model(dst / "checkpoint" / "model.zip", _pendulum())
+    read_replay_buffer(model, dst / "checkpoint" / "replay_buffer.npz")
     assert model.replay_buffer.size() == 240 + 50
     # pendulum episodes here last 100 steps: the prefill crossed two time limits, stored as truncations
     dones = model.replay_buffer.dones[:240, 0]
@@ -258,3 +255,26 @@ def test_cli_parses_the_training_only_options():
     for bad in ("high", "nan"):
         with pytest.raises(SystemExit):
             build_parser().parse_args(base + ["--target-entropy", bad])
+
+
+def test_a_resumed_checkpoint_restores_networks_optimisers_entropy_and_buffer(tmp_path):
+    """The pbicrl model file and replay-buffer .npz carry everything SB3's pickles carried for a resume."""
+    import torch
+
+    from pbicrl.demonstrators.sac_files import read_model, read_replay_buffer, save_model, save_replay_buffer
+
+    out = tmp_path / "run"
+    train_sac(_pendulum, 250, out, seed=7, **TINY)
+    model = read_model(out / "final_model.zip", _pendulum())
+    read_replay_buffer(model, out / "checkpoint" / "replay_buffer.npz")
+    assert model.num_timesteps == 250 and model.replay_buffer.size() == 250
+    assert model.actor.optimizer.state_dict()["state"]  # Adam moments restored, not fresh
+    assert float(model.log_ent_coef.detach()) != 0.0  # the learned temperature (starts at log 1 = 0)
+    save_model(model, tmp_path / "again.zip")
+    save_replay_buffer(model, tmp_path / "again.npz")
+    twin = read_model(tmp_path / "again.zip", _pendulum())
+    read_replay_buffer(twin, tmp_path / "again.npz")
+    for k, v in model.policy.state_dict().items():
+        assert torch.equal(v, twin.policy.state_dict()[k]), k
+    np.testing.assert_array_equal(model.replay_buffer.observations, twin.replay_buffer.observations)
+    assert (twin.batch_size, twin.tau, twin.gamma) == (32, model.tau, model.gamma)

@@ -135,20 +135,19 @@ def test_episode_dataclass_fields():
 
 
 def test_relabelled_warm_start_rescores_the_buffer(smoke_policy, tmp_path):
-    from stable_baselines3.common.save_util import load_from_pkl
-
     from pbicrl.demonstrators.navigation import relabelled_warm_start, train_nav_policy
+    from pbicrl.demonstrators.sac_files import read_buffer_arrays
 
     src = smoke_policy.parent  # a nominal-reward run
     out = tmp_path / "true"
     ckpt = relabelled_warm_start(src, "point_mass", "true", out, shaping_scale=0.0, tau=0.05)
-    old = load_from_pkl(src / "checkpoint" / "replay_buffer.pkl")
-    new = load_from_pkl(ckpt / "replay_buffer.pkl")
-    n = old.pos
-    assert new.pos == n and n > 0
-    expected = POINT_MASS_TASK.features(old.next_observations[:n, 0].astype(float)) @ np.array([1.0, -10, -100, -1])
-    np.testing.assert_allclose(new.rewards[:n, 0], expected, rtol=1e-5, atol=1e-5)
-    np.testing.assert_array_equal(new.actions[:n], old.actions[:n])
+    old = read_buffer_arrays(src / "checkpoint" / "replay_buffer.npz")
+    new = read_buffer_arrays(ckpt / "replay_buffer.npz")
+    n = int(old["pos"])
+    assert int(new["pos"]) == n and n > 0
+    expected = POINT_MASS_TASK.features(old["next_observations"][:n, 0].astype(float)) @ np.array([1.0, -10, -100, -1])
+    np.testing.assert_allclose(new["rewards"][:n, 0], expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(new["actions"][:n], old["actions"][:n])
     with pytest.raises(ValueError, match="out_dir"):
         relabelled_warm_start(src, "point_mass", "true", out)
     train_nav_policy("point_mass", "true", out, 50, shaping_scale=0.0, learning_starts=0, checkpoint_every=1000,

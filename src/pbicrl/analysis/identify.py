@@ -804,6 +804,56 @@ def threshold_interval(dataset: Dataset, constraint: AxisHalfspace, *, name: str
 
 
 # ---------------------------------------------------------------------------------------------- main
+_PROGRESS_DELAY_S = 3.0
+
+
+class _Progress:
+    """A tqdm bar on stderr that appears only after :data:`_PROGRESS_DELAY_S` seconds (or nothing)."""
+
+    def __init__(self, enabled: bool, what: str) -> None:
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(desc=what, unit="LP", delay=_PROGRESS_DELAY_S, leave=False, dynamic_ncols=True)
+
+    def step(self) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Progress) -> list[int]:
+    r"""The standardised features that some direction of the recession cone can move (penalties :math:`\le 0`).
+
+    Every direction :math:`\delta` of the cone has :math:`\delta \le 0`, so :math:`\sum_{j \in R} -\delta_j` over
+    :math:`\delta \in [-1, 0]^p` is at least :math:`-\delta'_j` for any single direction :math:`\delta'` and
+    :math:`j \in R`: one LP finds features whose penalty can grow without bound, and repeating it over the rest
+    until its optimum is below the threshold of the per-feature test certifies that no other one can. Only the
+    features found get the per-feature LPs, so a dataset with no unbounded penalty costs one or two LPs instead
+    of one per feature (the per-feature LPs decide exactly as before: this only skips those that must fail).
+    """
+    rest = np.ones(p, dtype=bool)
+    found: list[int] = []
+    bnd = [(-1.0, 0.0)] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
+    while rest.any():
+        obj = np.zeros(lp.n_var)
+        obj[:p] = rest.astype(np.float64)  # minimise sum_R delta_j = maximise sum_R -delta_j
+        x = lp.solve(obj, bnd, homogeneous=True)
+        tick.step()
+        if x is None or -float(obj[:p] @ x[:p]) <= _T_MIN:
+            break
+        hit = np.flatnonzero(rest & (x[:p] < -_T_MIN / (2.0 * p)))
+        if hit.size == 0:
+            break
+        rest[hit] = False
+        found.extend(int(a) for a in hit)
+    return sorted(found)
+
+
 def identify(
     dataset: Dataset,
     *,
@@ -816,6 +866,7 @@ def identify(
     constraints: ConstraintSet | Sequence[Constraint | dict] | None = None,
     preferences: Preferences | None = None,
     pairs_seed: int | None = None,
+    progress: bool = False,
 ) -> Identification:
     r"""Identifiability analysis of a ranked dataset, before sampling.
 
@@ -848,6 +899,8 @@ def identify(
         analysis is of those pairs, not of every cross-group pair (:attr:`Identification.pairs` says which);
         ``None`` or all pairs: the groups. ``pairs_seed`` is only recorded.
     pairs_seed : int, optional
+    progress : bool
+        Show a progress bar on stderr when the analysis runs longer than a few seconds (many features).
 
     Returns
     -------
@@ -877,7 +930,12 @@ def identify(
                                constraints=constraints, t0=t0)
     if penalty_sign not in ("negative", "any"):
         raise IdentifyError(f"penalty_sign: expected 'negative' or 'any', got {penalty_sign!r}")
-    beta = _check_scalar("beta", beta, 0.0, math.inf, lo_open=True, hi_open=True)
+    from pbicrl.inference.likelihood import check_beta
+
+    try:
+        beta = check_beta(beta)
+    except ValueError as exc:
+        raise IdentifyError(str(exc)) from None
     alpha = _check_scalar("alpha", alpha, 0.0, 0.5, lo_open=True, hi_open=False)
     d = dataset.n_features
     names = dataset.feature_names
@@ -948,7 +1006,9 @@ def identify(
     # ---- recession analysis (independent of alpha, beta, margins)
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
-    for a, j in enumerate(free):
+    tick = _Progress(progress, "identify: recession directions")
+    for a in (_recession_support(lp, p, K, free_uv, tick) if neg else range(p)):
+        j = free[a]
         for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
             # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
             obj = np.zeros(nv)
@@ -980,13 +1040,17 @@ def identify(
             y = lp.solve(obj, bnd, homogeneous=True, extra_A=np.array(rows), extra_b=np.array(rhs))
             delta = (y[:p] if y is not None else d0) / s
             recess[j][int(sgn)] = delta / np.abs(delta).max()
+        tick.step()
 
     # ---- separating set S_alpha and the separation scales
     zero = np.zeros(nv)
     separable = lp.solve(zero, w_bounds(), homogeneous=False) is not None
     rng: dict[int, tuple[float, float]] = {}
+    tick.close()
+    tick = _Progress(progress, "identify: separation scales")
     if separable:
         for a, j in enumerate(free):
+            tick.step()
             ends = []
             for sgn in (-1.0, 1.0):  # sgn=-1: lowest w_j, sgn=+1: highest
                 if int(sgn) in recess[j]:
@@ -1000,6 +1064,7 @@ def identify(
                 ends.append(sgn * math.inf if abs(x[a]) >= 0.5 * _BIG else float(x[a]) / s[a])
             rng[j] = (ends[0], ends[1])
 
+    tick.close()
     # ---- assemble per-feature entries
     feats = []
     for j, n in enumerate(names):

@@ -1015,7 +1015,7 @@ def _save(fig: Any, path: Path, dpi: int) -> None:
 
 def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset: Any = None,
              truth: Mapping[str, float] | None = None, fmt: str = "png", dpi: int | None = None,
-             units: Mapping[str, str] | None = None) -> list[Path]:
+             units: Mapping[str, str] | None = None, overwrite: bool = False) -> list[Path]:
     """Write every figure of a run: ``trace``, ``posterior``, ``p_constraint``, ``pairs`` (parametric constraints
     only) and ``rewards`` (when the dataset is known).
 
@@ -1035,6 +1035,9 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
     units : mapping, optional
         Axis units by name (``"reward"``, a feature, ``"state"``, a parameter); default: the dataset's
         ``units`` attribute when it has one.
+    overwrite : bool
+        Replace figures of the same names already in ``out_dir`` (otherwise an existing one is an error,
+        raised before anything is drawn).
 
     Returns
     -------
@@ -1045,6 +1048,8 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
     ------
     ValueError
         For an unknown format, a non-positive dpi, or a ``truth`` with an unknown name.
+    OutputExistsError
+        A figure file exists and ``overwrite`` is false.
     """
     from pbicrl.inference.data import Dataset, load_dataset
     from pbicrl.runs import load_run
@@ -1058,18 +1063,22 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
     if isinstance(run, (str, os.PathLike)):
         run = load_run(run)
     truth = check_truth(truth, run.feature_names, tuple(getattr(run, "parameter_names", None) or ()))
+    default_out = out_dir is None
     if out_dir is None:
         base = getattr(run, "path", None)
         if base is None:
             raise ValueError("out_dir: required when plotting a Posterior that was not loaded from a run directory")
         out_dir = Path(base) / "plots"
     out = Path(out_dir)
+    from pbicrl._atomic import check_file_output, mark_output, read_marker
+
+    will_have_rewards = dataset is not None or _recorded_dataset(run) is not None
+    parametric = bool(tuple(getattr(run, "parameter_names", None) or ()))
+    for name in ("trace", "posterior", "p_constraint", *(("pairs",) if parametric else ()),
+                 *(("rewards",) if will_have_rewards else ())):
+        check_file_output(out / f"{name}.{fmt}", overwrite=overwrite, field="out_dir")
     if dataset is None:
-        dp = getattr(run, "data_path", None)
-        if dp is None:
-            dp = (getattr(run, "extra", {}) or {}).get("data", {}).get("path")
-        if dp is not None and Path(dp).is_file():
-            dataset = Path(dp)
+        dataset = _recorded_dataset(run)
     if isinstance(dataset, (str, os.PathLike)):
         dataset = load_dataset(dataset)
     if dataset is not None and not isinstance(dataset, Dataset):
@@ -1087,7 +1096,18 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
         figures["rewards"] = plot_rewards(run, dataset, **kw)
     # every figure is rendered before any file is replaced: a failing figure leaves the old set untouched
     with contextlib.ExitStack() as stack:
-        temps = {name: stack.enter_context(atomic_path(out / f"{name}.{fmt}")) for name in figures}
+        temps = {name: stack.enter_context(atomic_path(out / f"{name}.{fmt}", overwrite=overwrite, field="out_dir"))
+                 for name in figures}
         for name, fig in figures.items():
             _save(fig, temps[name], dpi)
+    marker = read_marker(out.parent) if default_out else None
+    if marker is not None and marker[0] == "run":  # RUN/plots belongs to the run: a later overwrite may replace it
+        mark_output(out.parent, "run", [out.name])
     return [out / f"{name}.{fmt}" for name in figures]
+
+
+def _recorded_dataset(run: Any) -> Path | None:
+    dp = getattr(run, "data_path", None)
+    if dp is None:
+        dp = (getattr(run, "extra", {}) or {}).get("data", {}).get("path")
+    return Path(dp) if dp is not None and Path(dp).is_file() else None

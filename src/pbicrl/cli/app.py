@@ -138,6 +138,17 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         candidates=None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()])
 
 
+def _require_usable_draws(post: Any) -> None:
+    """A posterior whose draws hold NaN or infinite values is an error (exit 2, nothing written), not a result."""
+    for key in ("penalty_weights", "log_likelihood"):
+        arr = np.asarray(getattr(post, key), dtype=np.float64)
+        bad = int(arr.size - np.count_nonzero(np.isfinite(arr)))
+        if bad:
+            raise ValueError(f"{key}: {bad:,} of {arr.size:,} values of the draws are NaN or infinite, so the run has "
+                             "no usable draws and nothing was written; use a smaller beta or margins, or rescale "
+                             "the features")
+
+
 def _cmd_infer(args: argparse.Namespace) -> int:
     from pbicrl.api import infer_from_config
     from pbicrl.inference.data import load_dataset
@@ -146,11 +157,14 @@ def _cmd_infer(args: argparse.Namespace) -> int:
 
     cfg = _config_from_args(args)
     data = resolve_dataset_path(args.data)
-    check_out_dir(args.out, overwrite=args.overwrite, claim=True)  # before sampling; claimed until written
+    inputs = [data, args.config]
     if args.out.resolve() == data.resolve():
         raise FileExistsError(f"out: {args.out} is the input dataset; choose another directory")
+    # before sampling; claimed until written
+    check_out_dir(args.out, overwrite=args.overwrite, claim=True, inputs=inputs)
     ds = load_dataset(data)
     post = infer_from_config(ds, cfg, progress=not args.no_progress)
+    _require_usable_draws(post)
     post.extra["data"]["path"] = str(data)
     extra_json = {}
     if args.check:
@@ -161,7 +175,7 @@ def _cmd_infer(args: argparse.Namespace) -> int:
         res = cross_validate(ds, args.check, lambda d: infer_from_config(d, cfg, progress=False), seed=cfg.seed)
         extra_json["check.json"] = res.to_dict()
         post.extra["check"] = {k: v for k, v in res.to_dict().items() if k != "folds"}
-    post.save(args.out, overwrite=args.overwrite, extra_json=extra_json)
+    post.save(args.out, overwrite=args.overwrite, extra_json=extra_json, inputs=inputs)
     if args.json:
         print(json.dumps(post.summary(), indent=2, allow_nan=False))
     else:
@@ -226,7 +240,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                         distinct=cfg.sampler == "authors")  # as infer samples them
     res = identify(ds, nominal_weights=cfg.nominal_weights, beta=cfg.beta, margins=cfg.margins, alpha=cfg.alpha,
                    candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset,  # type: ignore[arg-type]
-                   preferences=prefs, pairs_seed=cfg.pairs_seed if prefs is not None else None)
+                   preferences=prefs, pairs_seed=cfg.pairs_seed if prefs is not None else None,
+                   progress=True)
     if args.json:
         print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
     else:
@@ -304,22 +319,26 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     cfg = cfg.updated(iterations=args.iterations, chains=args.chains, sampler=args.sampler, seed=args.seed)
     from pbicrl.inference.results import check_out_dir
 
-    check_out_dir(args.out, overwrite=args.overwrite, claim=True)
+    if args.grid is not None and len(args.grid) == 0:
+        raise ValueError("--grid: no values; give the gaps to try, e.g. --grid 0,0.5,1,2 (or leave it out for the "
+                         "default)")
     data = resolve_dataset_path(args.data)
+    check_out_dir(args.out, overwrite=args.overwrite, claim=True, inputs=[data, args.config])
     ds = load_dataset(data)
     from dataclasses import replace
 
-    res = tune_margins(ds, args.relation, gap_grid=args.grid or DEFAULT_GAP_GRID, estimator=args.estimator,
+    res = tune_margins(ds, args.relation, gap_grid=DEFAULT_GAP_GRID if args.grid is None else args.grid, estimator=args.estimator,
                        progress=not args.no_progress,
                        run=lambda m: infer_from_config(ds, replace(cfg, margins=m.matrix.tolist()), progress=False))
     post = res.posterior
+    _require_usable_draws(post)
     post.extra.setdefault("data", {})["path"] = str(data)
     post.extra["margin_tuning"] = res.to_dict()
     summary = post.summary()
     arrays = {"indicators": post.indicators, "penalty_weights": post.penalty_weights, "parameters": post.parameters,
               "log_likelihood": post.log_likelihood}
     write_run_dir(args.out, {"summary.json": summary, "tuning.json": res.to_dict()}, {"chains.npz": arrays},
-                  overwrite=args.overwrite)
+                  overwrite=args.overwrite, inputs=[data, args.config])
     print(f"chosen margins: {res.margins.as_dict()}")
     print(f"gap relation asked {np.round(res.relation_target, 3).tolist()}, achieved "
           f"{np.round(res.relation_achieved, 3).tolist()} (error {res.error:.4f}; {len(res.table)} candidates)")

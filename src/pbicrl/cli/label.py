@@ -30,11 +30,15 @@ def add_subcommands(sub: Any) -> None:
     p.add_argument("--out", type=Path, help="labelled dataset (.npz), written on every change; resumed if it exists")
     p.add_argument("--port", type=port, default=8000, help="port (default 8000; 0 = any free port)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                   help="a host name clients may use (repeat, or comma-separated); required with a --host other "
+                        "than a loopback address, where only these names are accepted")
     p.add_argument("--no-browser", action="store_true", help="do not open a browser")
     p.add_argument("--env", dest="env_id", help="environment for the pictures (default: the dataset's env_id)")
     p.add_argument("--export", type=Path, metavar="FILE",
                    help="instead of serving: write DATA's labelled trajectories (skipped and unlabelled ones "
                         "dropped) to FILE, a dataset that 'pbicrl infer' reads, and exit")
+    p.add_argument("--overwrite", action="store_true", help="--export: replace an existing FILE (never DATA itself)")
     p.set_defaults(func=_cmd_label)
 
     q = sub.add_parser("pool", help="an unlabelled pool for 'pbicrl label' from a dataset (yours or a shipped one)",
@@ -87,21 +91,33 @@ def _cmd_label(args: argparse.Namespace) -> int:
     from pbicrl.inference.data import load_dataset
 
     if args.export is not None:
+        from pbicrl._atomic import check_file_output
+        from pbicrl.inference.data import resolve_dataset_path
+
         if args.export.suffix != ".npz":
             raise ValueError(f"export: {args.export}: expected a file name ending in .npz")
-        ds = load_dataset(args.data, allow_unlabelled=True)
+        data = resolve_dataset_path(args.data)
+        # the labelled subset over its own pool (or over any file) would lose what it leaves out
+        check_file_output(args.export, overwrite=args.overwrite, inputs=[data, args.out], field="--export")
+        ds = load_dataset(data, allow_unlabelled=True)
         out = ds.labelled()
-        path = out.save(args.export)
+        path = out.save(args.export, overwrite=args.overwrite)
         print(f"wrote {path}: {out} ({ds.n_unlabelled} unlabelled or skipped trajectories left out)")
         return 0
     if args.out is None:
         raise ValueError("out: required (the labelled dataset, e.g. --out labelled.npz)")
+    allow_hosts = [h.strip() for a in args.allow_host for h in a.split(",") if h.strip()]
+    from pbicrl.ui.server import LOOPBACK_HOSTS
+
+    if args.host not in LOOPBACK_HOSTS and not allow_hosts:
+        raise ValueError(f"allow-host: listening on {args.host!r} (not this machine only) needs the host names "
+                         "clients will use: --allow-host NAME (anyone who reaches them can change the labels)")
     from pbicrl.ui import require_ui_extra
 
     require_ui_extra()
     import uvicorn
 
-    from pbicrl.ui.server import LOOPBACK_HOSTS, create_app
+    from pbicrl.ui.server import create_app
     from pbicrl.ui.session import LabelSession
 
     session = LabelSession(args.data, args.out, env_id=args.env_id)
@@ -111,7 +127,7 @@ def _cmd_label(args: argparse.Namespace) -> int:
             s.bind((args.host, 0))
             port = s.getsockname()[1]
     check_port(args.host, port)
-    app = create_app(session, host=args.host)
+    app = create_app(session, host=args.host, allow_hosts=allow_hosts)
     shown = f"[{args.host}]" if ":" in args.host else args.host
     url = f"http://{shown}:{port}/"
     state = session.state()

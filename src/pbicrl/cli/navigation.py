@@ -62,6 +62,22 @@ def shipped_policy(env: str, role: str) -> Path:
     return DATA_DIR / "policies" / f"{env}_{role}.zip"
 
 
+def npz_path(path: Path) -> Path:
+    """The file ``Dataset.save`` writes for ``path`` (``.npz`` appended to another suffix)."""
+    path = Path(path)
+    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz" if path.suffix else ".npz")
+
+
+def check_outputs(outputs: Sequence[Path | None], overwrite: bool, inputs: Sequence[Path | None] = (),
+                  field: str = "--out") -> None:
+    """Before any work: an existing output file is replaced only with ``--overwrite``, an input never."""
+    from pbicrl._atomic import check_file_output
+
+    for out in outputs:
+        if out is not None:
+            check_file_output(out, overwrite=overwrite, inputs=[i for i in inputs if i is not None], field=field)
+
+
 def _cmd_train(args: argparse.Namespace) -> int:
     from pbicrl.demonstrators.navigation import train_nav_policy
 
@@ -133,6 +149,8 @@ def _cmd_demos(args: argparse.Namespace) -> int:
         if p is not None and not Path(p).is_file():
             print(f"error: {name}: no such file {p} (train it with `python -m pbicrl.envs train`)", file=sys.stderr)
             return 2
+    out = npz_path(args.out)
+    check_outputs([out, out.with_suffix(".json")], args.overwrite, [good, bad])
     if args.paper_protocol:
         defaults = PAPER_PROTOCOL[args.env]
         p_good = defaults["p_good"] if args.p_good is None else args.p_good
@@ -169,6 +187,7 @@ def _cmd_demos(args: argparse.Namespace) -> int:
 def _cmd_plot(args: argparse.Namespace) -> int:
     from pbicrl.demonstrators.navigation import plot_navigation_demos
 
+    check_outputs([args.out], args.overwrite, [args.dataset])
     print(plot_navigation_demos(args.dataset, args.env, args.out, max_per_group=args.max_per_group,
                                 seed=args.seed, title=args.title))
     return 0
@@ -177,6 +196,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 def _cmd_grid(args: argparse.Namespace) -> int:
     from pbicrl.envs.grid import grid_dataset
 
+    check_outputs([npz_path(args.out)], args.overwrite)
     print(grid_dataset().save(args.out))
     return 0
 
@@ -185,6 +205,7 @@ def _cmd_minari_to_npz(args: argparse.Namespace) -> int:
     from pbicrl.envs.minari_io import minari_to_dataset
     from pbicrl.envs.regions import FEATURE_NAMES
 
+    check_outputs([npz_path(args.out)], args.overwrite)
     nominal = None
     if args.env == "point_mass":
         from pbicrl.envs.point_mass import POINT_MASS_TASK
@@ -257,7 +278,8 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, help="output .npz (a .json report is written beside it)")
     p.add_argument("--minari-id", default=None, help="also write a local Minari dataset with this id")
     p.add_argument("--minari-root", type=Path, default=None, help="Minari datasets directory")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing Minari dataset")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out file (and its .json) or Minari dataset (never a policy)")
     p.set_defaults(func=_cmd_demos)
 
     p = subparsers.add_parser("plot", help="PNG of trajectories coloured by group")
@@ -267,10 +289,12 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-per-group", type=_positive_int, default=60)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--title", default=None)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=_cmd_plot)
 
     p = subparsers.add_parser("grid", help="write the 3x3 grid example dataset")
     p.add_argument("--out", required=True, type=Path)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=_cmd_grid)
 
     p = subparsers.add_parser("minari-to-npz", help="convert a local Minari dataset to .npz")
@@ -278,6 +302,7 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--root", type=Path, default=None)
     p.add_argument("--env", choices=envs, default=None, help="store this environment's nominal weights")
     p.add_argument("--out", required=True, type=Path)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=_cmd_minari_to_npz)
 
 

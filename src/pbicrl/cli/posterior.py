@@ -98,7 +98,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise ValueError(f"--out: {args.out} is a file; plots go into a directory")
     with _flag_wording({"truth": "--truth", "fmt": "--format", "dpi": "--dpi"}):
-        files = plot_run(run, args.out, dataset=args.data, truth=truth, fmt=args.format, dpi=args.dpi)
+        files = plot_run(run, args.out, dataset=args.data, truth=truth, fmt=args.format, dpi=args.dpi,
+                         overwrite=args.overwrite)
     for f in files:
         print(f"wrote {f}")
     if not any(f.stem == "rewards" for f in files):
@@ -114,16 +115,26 @@ def _cmd_export(args: argparse.Namespace) -> int:
     out = args.netcdf if args.netcdf is not None else Path(args.run) / "posterior.nc"
     if out.is_dir():
         raise ValueError(f"--netcdf: {out} is a directory; give a file name such as {out / 'posterior.nc'}")
-    _refuse_inputs(out, [args.run, Path(args.run) / "summary.json", Path(args.run) / "chains.npz"], "--netcdf")
     from pbicrl._atomic import OutputExistsError
     from pbicrl.inference.data import resolve_dataset_path
 
+    recorded = getattr(run, "data_path", None)  # the dataset the run recorded: read for pointwise values
+    data = resolve_dataset_path(args.data) if args.data else None
+    _refuse_inputs(out, [args.run, Path(args.run) / "summary.json", Path(args.run) / "chains.npz", data,
+                         None if recorded is None else Path(recorded)], "--netcdf")
+
     try:
         path = to_netcdf(run, out, overwrite=args.overwrite,
-                         dataset=resolve_dataset_path(args.data) if args.data else None,
+                         dataset=data,
                          pointwise=not args.no_pointwise, pointwise_draws=args.pointwise_draws)
     except OutputExistsError as exc:  # worded for Python (overwrite=True); here the flag is --overwrite
         raise FileExistsError(f"--netcdf: {exc.path} already exists; choose another file or pass --overwrite") from None
+    if args.netcdf is None:  # RUN/posterior.nc belongs to the run: a later --overwrite of the run may replace it
+        from pbicrl._atomic import mark_output, read_marker
+
+        marker = read_marker(args.run)
+        if marker is not None and marker[0] == "run":
+            mark_output(args.run, "run", ["posterior.nc"])
     print(f"wrote {path}")
     return 0
 
@@ -167,12 +178,15 @@ def _cmd_import_table(args: argparse.Namespace) -> int:
 
 
 def _cmd_import_minari(args: argparse.Namespace) -> int:
-    from pbicrl.envs.minari_io import require_minari
+    from pbicrl.envs.minari_io import load_minari, require_minari
     from pbicrl.io import from_minari, load_feature_function
 
     groups_file = Path(args.groups) if args.groups and args.groups.endswith(".json") else _spec_file(args.groups)
     _check_out(args.out, args.overwrite, [_spec_file(args.features), groups_file])
     require_minari()  # before any user code runs: executing a feature file is pointless without minari
+    # the dataset too: a typo in its id must not run the feature file first (the one place pbicrl runs a
+    # user's code on purpose, with --groups module:function and a sweep's kind = "module:function")
+    dataset = load_minari(args.dataset_id, args.root)
     fn = load_feature_function(args.features) if args.features else None
     groups: Any = None
     if args.groups:
@@ -189,7 +203,7 @@ def _cmd_import_minari(args: argparse.Namespace) -> int:
         else:
             groups = load_feature_function(args.groups, option="--groups")
     names = [c.strip() for c in args.feature_names.split(",")] if args.feature_names else None
-    ds = from_minari(args.dataset_id, fn, groups=groups, root=args.root, feature_names=names,
+    ds = from_minari(dataset, fn, groups=groups, root=args.root, feature_names=names,
                      nominal_weights=args.nominal_weights, states=not args.no_states, actions=not args.no_actions)
     ds.save(args.out, overwrite=args.overwrite)
     print(f"wrote {args.out}: {ds}")
@@ -215,6 +229,7 @@ def add_subcommands(sub: Any) -> None:
     p.add_argument("--out", type=Path, help="output directory (default RUN_DIR/plots)")
     p.add_argument("--format", choices=["png", "pdf", "svg"], default="png")
     p.add_argument("--dpi", type=_positive_int, default=None, help="resolution of PNG figures (default 200)")
+    p.add_argument("--overwrite", action="store_true", help="replace figures of the same names in the directory")
     p.set_defaults(func=_cmd_plot)
 
     p = sub.add_parser("export", help="export a run to ArviZ NetCDF",

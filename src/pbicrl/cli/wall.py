@@ -77,8 +77,13 @@ def _cmd_train_wall(args: argparse.Namespace) -> int:
 
 
 def _cmd_demos_wall(args: argparse.Namespace) -> int:
+    from pbicrl.cli.navigation import npz_path, check_outputs
     from pbicrl.demonstrators.wall import generate_wall_demos
 
+    inputs = [args.good_policy, args.violating_policy]
+    check_outputs([npz_path(args.out)], args.overwrite, inputs)
+    check_outputs([args.report], args.overwrite, [*inputs, npz_path(args.out)], field="--report")
+    args.out = npz_path(args.out)
     _, report = generate_wall_demos(args.env, args.good_policy, args.violating_policy, args.n, args.out,
                                     seed=args.seed, n_steps=args.steps, deterministic=args.deterministic,
                                     quantize=not args.no_quantize, max_attempts_factor=args.max_attempts_factor)
@@ -86,7 +91,9 @@ def _cmd_demos_wall(args: argparse.Namespace) -> int:
     report["file_bytes"] = os.path.getsize(args.out)
     text = json.dumps(report, indent=2, sort_keys=True)
     if args.report:
-        Path(args.report).write_text(text + "\n")
+        from pbicrl._atomic import write_text
+
+        write_text(args.report, text + "\n")
     print(text)
     return 0
 
@@ -95,6 +102,9 @@ def _cmd_plot_wall(args: argparse.Namespace) -> int:
     from pbicrl.demonstrators.wall import plot_wall_visitation
     from pbicrl.envs.mujoco_wall import wall_spec
 
+    from pbicrl.cli.navigation import check_outputs
+
+    check_outputs([args.out], args.overwrite, [args.dataset])
     wall = args.wall_x if args.wall_x is not None else wall_spec(args.env).wall_x
     print(plot_wall_visitation(args.dataset, wall, args.out, title=args.title or args.env))
     return 0
@@ -158,6 +168,7 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
                    help="store full-precision x/actions (default: x on a 2**-16 m grid, actions on 2**-10)")
     p.add_argument("--out", required=True, type=Path, help="output .npz")
     p.add_argument("--report", type=Path, default=None, help="also write the JSON report here")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out/--report file (never an input)")
     p.set_defaults(func=_cmd_demos_wall)
 
     p = subparsers.add_parser("plot-wall", help="x visitation frequency of good vs violating demonstrations")
@@ -166,6 +177,7 @@ def add_subcommands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, help="output PNG")
     p.add_argument("--wall-x", type=float, default=None, help="defaults to the environment's wall")
     p.add_argument("--title", default=None)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=_cmd_plot_wall)
 
 

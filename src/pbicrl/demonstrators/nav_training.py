@@ -199,7 +199,7 @@ def relabelled_warm_start(source_run: str | os.PathLike, env: str, reward: str, 
     Parameters
     ----------
     source_run : path
-        Run directory with ``final_model.zip`` and ``checkpoint/replay_buffer.pkl``.
+        Run directory with ``final_model.zip`` and ``checkpoint/replay_buffer.npz``.
     env, reward : str
         Environment and reward of the new run.
     out_dir : path
@@ -213,7 +213,8 @@ def relabelled_warm_start(source_run: str | os.PathLike, env: str, reward: str, 
 
     require_rl()
     from stable_baselines3 import SAC
-    from stable_baselines3.common.save_util import load_from_pkl
+
+    from pbicrl.demonstrators import sac_files
 
     spec = nav_spec(env)
     src, out = Path(source_run), Path(out_dir)
@@ -222,9 +223,11 @@ def relabelled_warm_start(source_run: str | os.PathLike, env: str, reward: str, 
     scale = spec.shaping_scale if shaping_scale is None else float(shaping_scale)
     env_fn = _training_env_fn(env, reward, scale)
     value = env_fn.value  # type: ignore[attr-defined]
-    source = SAC.load(src / "final_model.zip", device="cpu")
-    old = load_from_pkl(src / "checkpoint" / "replay_buffer.pkl")
-    n = old.buffer_size if old.full else old.pos
+    source = sac_files.read_model(src / "final_model.zip", env_fn(), what="source_run")
+    old = sac_files.read_buffer_arrays(src / "checkpoint" / "replay_buffer.npz", what="source_run")
+    n = old["observations"].shape[0]
+    if n > spec.buffer_size:
+        raise ValueError(f"source_run: {n} stored transitions exceed the new buffer ({spec.buffer_size})")
     model = SAC("MlpPolicy", env_fn(), learning_rate=source.learning_rate, buffer_size=spec.buffer_size,
                 learning_starts=0, batch_size=source.batch_size, tau=source.tau if tau is None else float(tau),
                 gamma=source.gamma,
@@ -233,9 +236,9 @@ def relabelled_warm_start(source_run: str | os.PathLike, env: str, reward: str, 
     model.policy.load_state_dict(source.policy.state_dict())
     task = make_nav_env(env, reward).task
     w = task.weights(reward)
-    obs = old.observations[:n, 0].astype(np.float64)
-    nxt = old.next_observations[:n, 0].astype(np.float64)
-    done = old.dones[:n, 0].astype(bool)
+    obs = old["observations"][:n, 0].astype(np.float64)
+    nxt = old["next_observations"][:n, 0].astype(np.float64)
+    done = old["dones"][:n, 0].astype(bool)
     # goal reached = terminal; decided from the state, since a source run that treated time
     # limits as terminal did not record which "done" flags were truncations
     reached = task.reached(nxt)
@@ -245,16 +248,16 @@ def relabelled_warm_start(source_run: str | os.PathLike, env: str, reward: str, 
         phi_next = np.where(reached, 0.0, [-scale * value(x) for x in nxt])
         rewards = rewards + phi_next - phi
     buf = model.replay_buffer
-    buf.observations[:n, 0] = old.observations[:n, 0]
-    buf.next_observations[:n, 0] = old.next_observations[:n, 0]
-    buf.actions[:n, 0] = old.actions[:n, 0]
+    buf.observations[:n, 0] = old["observations"][:n, 0]
+    buf.next_observations[:n, 0] = old["next_observations"][:n, 0]
+    buf.actions[:n, 0] = old["actions"][:n, 0]
     buf.rewards[:n, 0] = rewards
     buf.dones[:n, 0] = done  # time limits count as terminal in the new run
     buf.pos, buf.full = n % buf.buffer_size, n >= buf.buffer_size
     ckpt = out / "checkpoint"
     ckpt.mkdir(parents=True)
-    model.save(ckpt / "model.zip")
-    model.save_replay_buffer(ckpt / "replay_buffer.pkl")
+    sac_files.save_model(model, ckpt / "model.zip")
+    sac_files.save_replay_buffer(model, ckpt / "replay_buffer.npz")
     (ckpt / "state.json").write_text(json.dumps({"num_timesteps": 0, "wall_time_s": 0.0, "sessions": []}))
     info = {"source_run": str(src), "transitions": int(n), "reward": reward, "ent_coef": ent_coef,
             "tau": float(model.tau),

@@ -4,7 +4,7 @@
 built to survive interruptions on a shared CPU box:
 
 * every ``checkpoint_every`` steps it writes ``out_dir/checkpoint/`` (full model
-  with optimisers, replay buffer, step count, cumulative wall time) atomically;
+  with optimisers, replay buffer as ``replay_buffer.npz``, step count, cumulative wall time) atomically;
   calling :func:`train_sac` again with the same ``out_dir`` resumes from it;
 * SIGTERM/SIGINT stop training cleanly after writing a checkpoint;
 * ``out_dir/progress.log`` gets one line per ``log_every`` steps (steps, steps/s,
@@ -13,7 +13,11 @@ built to survive interruptions on a shared CPU box:
   hyperparameters and library versions;
 * at the end ``out_dir/policy.zip`` holds only the policy networks (small, no
   replay buffer or optimiser state; load with :func:`load_policy`) and
-  ``out_dir/final_model.zip`` the full SB3 model (for warm starts via ``init_from``).
+  ``out_dir/final_model.zip`` the full model (for warm starts via ``init_from``).
+
+Every file is written and read in pbicrl's own format (:mod:`pbicrl.demonstrators.sac_files`: settings as
+JSON checked against a schema, tensors read with ``torch.load(weights_only=True)``, replay buffers as plain
+``.npz``), never with pickle, so a policy or checkpoint from someone else cannot run code when opened.
 
 Defaults follow the paper's SAC table (learning rate 3e-4 for all nets, batch 128,
 two hidden layers of 256 units, replay buffer 10 000).
@@ -33,7 +37,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from pbicrl._atomic import atomic_dir, atomic_path, clean_stale_temporaries, write_text
+from pbicrl._atomic import atomic_dir, clean_stale_temporaries, write_text
 from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
 
 __all__ = ["SACConfig", "load_policy", "require_rl", "train_sac"]
@@ -72,44 +76,50 @@ def _write_json_atomic(path: Path, obj: Any) -> None:
 
 
 def _is_policy_only(path: Path) -> bool:
-    """True for a ``policy.zip`` written by ``policy.save`` (no SB3 ``data`` member)."""
-    import zipfile
+    """True for a policy file (``policy.zip``), False for a whole model (``final_model.zip``)."""
+    from pbicrl.demonstrators.sac_files import MODEL_FORMAT, file_format
 
-    try:
-        with zipfile.ZipFile(path) as zf:
-            return "data" not in zf.namelist()
-    except zipfile.BadZipFile:
-        return True
+    return file_format(path) != MODEL_FORMAT
 
 
 def _find_checkpoint(out_dir: Path) -> Path | None:
     clean_stale_temporaries(out_dir / _CKPT)  # a swap killed half-way: put the previous checkpoint back
     for name in (_CKPT, _CKPT_OLD):  # checkpoint.old: the swap of earlier versions, killed half-way
         d = out_dir / name
-        if (d / "state.json").is_file() and (d / "model.zip").is_file() and (d / "replay_buffer.pkl").is_file():
-            return d
+        if (d / "state.json").is_file() and (d / "model.zip").is_file():
+            if (d / "replay_buffer.npz").is_file():
+                return d
+            if (d / "replay_buffer.pkl").is_file():  # an earlier pbicrl's pickles: refuse, never start afresh over it
+                raise ValueError(f"out_dir: {d} is a checkpoint in the pickle format of earlier versions, which "
+                                 "pbicrl no longer reads (opening it could run code stored in it); convert a run "
+                                 "you trust with pbicrl.demonstrators.sac_files.convert_sb3_checkpoint("
+                                 f"{str(out_dir)!r}), or choose another out_dir")
     return None
 
 
 def _save_checkpoint(model: Any, out_dir: Path, state: dict[str, Any]) -> None:
     """Write model + replay buffer + state into a temp dir, then swap it in."""
+    from pbicrl.demonstrators import sac_files
+
     with atomic_dir(out_dir / _CKPT, replace=True) as tmp:
-        model.save(tmp / "model.zip")
-        model.save_replay_buffer(tmp / "replay_buffer.pkl")
+        sac_files.save_model(model, tmp / "model.zip")
+        sac_files.save_replay_buffer(model, tmp / "replay_buffer.npz")
         _write_json_atomic(tmp / "state.json", state)
     old = out_dir / _CKPT_OLD
     if old.exists():  # left by an earlier version's swap; the new checkpoint is complete
         shutil.rmtree(old)
 
 
-def _atomic_model_save(obj: Any, path: Path) -> None:
-    with atomic_path(path) as tmp:  # same suffix (.zip), so SB3 writes exactly this file
-        obj.save(tmp)
-
-
 def load_policy(path: str | os.PathLike, device: str = "cpu") -> Any:
-    """Load a ``policy.zip`` written by :func:`train_sac`, or the policy of a full SB3 ``model.zip`` (a
+    """Load a ``policy.zip`` written by :func:`train_sac`, or the policy of a whole ``model.zip`` (a
     checkpoint, e.g. ``training/<run>/model.zip``).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    pbicrl.demonstrators.sac_files.SACFileError
+        A Stable-Baselines3 pickle (refused: opening it could run code) or an invalid file; a ``ValueError``.
 
     Returns
     -------
@@ -117,19 +127,10 @@ def load_policy(path: str | os.PathLike, device: str = "cpu") -> Any:
         Call ``policy.predict(obs, deterministic=...)`` to act.
     """
     require_rl()
-    from stable_baselines3.sac.policies import SACPolicy
+    from pbicrl.demonstrators.sac_files import read_policy
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"policy: no such file {path}")
-    if _is_policy_only(path):
-        policy = SACPolicy.load(str(path), device=device)
-    else:  # a whole model (networks, optimisers, hyperparameters): its policy is all we act with
-        from stable_baselines3 import SAC
-
-        policy = SAC.load(str(path), device=device).policy
-    policy.set_training_mode(False)
-    return policy
+    # a whole model (networks, optimisers, hyperparameters): its policy is all we act with
+    return read_policy(path, device=device)
 
 
 def _prefill_replay_buffer(model: Any, env_fn: Callable[[], Any], n_steps: int, seed: int) -> int:
@@ -258,6 +259,8 @@ def train_sac(
     """
     torch, _sb3 = require_rl()
     from stable_baselines3 import SAC
+
+    from pbicrl.demonstrators import sac_files
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.monitor import Monitor
 
@@ -301,8 +304,8 @@ def train_sac(
     ckpt = _find_checkpoint(out_dir)
     if ckpt is not None:
         state = json.loads((ckpt / "state.json").read_text())
-        model = SAC.load(ckpt / "model.zip", env=env, device="cpu")
-        model.load_replay_buffer(ckpt / "replay_buffer.pkl")
+        model = sac_files.read_model(ckpt / "model.zip", env, what="checkpoint")
+        sac_files.read_replay_buffer(model, ckpt / "replay_buffer.npz")
         sessions = list(state.get("sessions", []))
         wall_before = float(state.get("wall_time_s", 0.0))
         log(f"resume from {ckpt.name} at step {model.num_timesteps} (session {len(sessions) + 1})")
@@ -314,16 +317,13 @@ def train_sac(
             init_path = Path(init_from)
             if not init_path.is_file():
                 raise ValueError(f"init_from: no such model file {init_path}")
-            custom = {"learning_rate": learning_rate, "lr_schedule": (lambda _: learning_rate),
-                      "batch_size": batch_size, "buffer_size": buffer_size,
+            custom = {"learning_rate": learning_rate, "batch_size": batch_size, "buffer_size": buffer_size,
                       "learning_starts": learning_starts, "gamma": gamma, "tau": tau,
                       "train_freq": train_freq, "gradient_steps": gradient_steps}
             if target_entropy != "auto":
                 custom["target_entropy"] = float(target_entropy)
             if _is_policy_only(init_path):
                 # a shipped ``policy.zip`` (networks only): fresh SAC, then copy actor and critics in
-                from stable_baselines3.sac.policies import SACPolicy
-
                 model = SAC("MlpPolicy", env, learning_rate=learning_rate, buffer_size=buffer_size,
                             ent_coef=ent_coef, replay_buffer_kwargs=replay_buffer_kwargs,
                             target_entropy=target_entropy, learning_starts=learning_starts,
@@ -331,13 +331,13 @@ def train_sac(
                             train_freq=train_freq, gradient_steps=gradient_steps,
                             policy_kwargs={**(policy_kwargs or {}), "net_arch": net_arch}, seed=seed,
                             device="cpu", verbose=0)
-                src = SACPolicy.load(str(init_path), device="cpu")
+                src = sac_files.read_policy(init_path, what="init_from")
                 try:
                     model.policy.load_state_dict(src.state_dict())
                 except RuntimeError as exc:
                     raise ValueError(f"init_from: {init_path} does not fit this environment/net_arch ({exc})") from None
             else:
-                model = SAC.load(init_path, env=env, device="cpu", custom_objects=custom)
+                model = sac_files.read_model(init_path, env, what="init_from", overrides=custom)
             model.num_timesteps = 0
             model._episode_num = 0
             model.ep_info_buffer = None  # report only this run's episodes
@@ -429,8 +429,8 @@ def train_sac(
         env.close()
         raise KeyboardInterrupt(f"SAC training interrupted at step {done}/{total_steps}; rerun to resume")
 
-    _atomic_model_save(model, out_dir / "final_model.zip")
-    _atomic_model_save(model.policy, out_dir / "policy.zip")
+    sac_files.save_model(model, out_dir / "final_model.zip")
+    sac_files.save_policy(model.policy, out_dir / "policy.zip")
     status = "complete" if done >= total_steps else "deadline"
     write_budget(done, status)
     if status == "deadline":

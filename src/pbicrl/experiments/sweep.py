@@ -59,7 +59,7 @@ from pbicrl.experiments.tasks import (
     stale_reason,
 )
 
-__all__ = ["RunRecord", "SweepResult", "SweepSpec", "expand_grid", "fmt_value", "load_sweep", "plan_sweep",
+__all__ = ["RunRecord", "SweepResult", "SweepSpec", "expand_grid", "fmt_value", "load_sweep", "plan_sweep", "MAX_RUNS",
            "run_tasks", "MANIFEST"]
 
 MANIFEST = "sweep.json"
@@ -388,6 +388,10 @@ class SweepSpec:
     source: Path | None = None
 
 
+MAX_RUNS = 100_000
+"""Most runs one sweep file may expand to (each is a process's worth of work and a directory)."""
+
+
 def expand_grid(base: Mapping[str, Any], grid: Mapping[str, Sequence[Any]] | None = None,
                 runs: Sequence[Mapping[str, Any]] | None = None) -> list[tuple[dict[str, Any], dict[str, Any]]]:
     """Every combination of ``grid`` values over ``base`` (crossed with each ``runs`` variant).
@@ -400,6 +404,7 @@ def expand_grid(base: Mapping[str, Any], grid: Mapping[str, Sequence[Any]] | Non
     """
     out = []
     variants = list(runs) if runs else [{}]
+    grids = []
     for i, variant in enumerate(variants):
         where = f"runs[{i}]" if runs else "grid"
         variant = dict(variant)
@@ -412,6 +417,14 @@ def expand_grid(base: Mapping[str, Any], grid: Mapping[str, Sequence[Any]] | Non
         for key, values in vgrid.items():
             if not isinstance(values, list) or not values:
                 raise TaskError(f"grid.{key}: expected a non-empty list of values, got {values!r}")
+        grids.append((variant, vgrid))
+    # the size is a product of list lengths: counted before anything is built (60**8 runs would fill the memory)
+    total = sum(math.prod(len(v) for v in vgrid.values()) for _, vgrid in grids)
+    if total > MAX_RUNS:
+        sizes = " x ".join(str(len(v)) for v in grids[0][1].values()) if len(grids) == 1 else f"{len(grids)} variants"
+        raise TaskError(f"grid: {total:,} runs ({sizes}), more than {MAX_RUNS:,}; split the sweep or shorten the "
+                        "lists")
+    for variant, vgrid in grids:
         keys = list(vgrid)
         for combo in itertools.product(*(vgrid[k] for k in keys)):
             point = dict(zip(keys, combo))

@@ -67,14 +67,26 @@ class Constraint:
     family: str = field(default="", init=False)
 
     def __post_init__(self) -> None:
-        dims = (self.dims,) if isinstance(self.dims, (int, np.integer)) else tuple(self.dims)
-        if len(dims) == 0:
-            raise ConstraintError(f"constraint {self.name or self.family!r}: dims is empty")
+        label = self.name or self.family
+        try:
+            dims = (self.dims,) if isinstance(self.dims, (int, np.integer)) else tuple(self.dims)
+            if len(dims) == 0:
+                raise ConstraintError(f"constraint {label!r}: dims is empty")
+            if any(isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) for k in dims):
+                raise ConstraintError(f"constraint {label!r}: dims must be state column numbers (integers), "
+                                      f"got {list(dims)!r}")
+        except TypeError:
+            raise ConstraintError(f"constraint {label!r}: dims must be a list of state column numbers, "
+                                  f"got {self.dims!r}") from None
         object.__setattr__(self, "dims", tuple(int(k) for k in dims))
         if not self.name:
             object.__setattr__(self, "name", f"{self.family}{'_'.join(map(str, self.dims))}")
         if self.bounds is not None:
-            b = tuple((float(lo), float(hi)) for lo, hi in self.bounds)
+            try:
+                b = tuple((float(lo), float(hi)) for lo, hi in self.bounds)
+            except (TypeError, ValueError):
+                raise ConstraintError(f"constraint {self.name!r}: bounds must be [low, high] pairs of numbers, "
+                                      f"got {self.bounds!r}") from None
             if len(b) != self.n_params:
                 raise ConstraintError(f"constraint {self.name!r}: bounds has {len(b)} pairs, the family "
                                       f"{self.family} has {self.n_params} parameters {self.param_names()}")
@@ -257,7 +269,11 @@ def constraint_from_dict(spec: dict[str, Any]) -> Constraint:
     if unknown:
         raise ConstraintError(f"constraint {label!r}: unknown key(s) {sorted(unknown)} for family {fam}; allowed {sorted(allowed)}")
     if spec.get("bounds") is not None:
-        spec["bounds"] = tuple(tuple(b) for b in spec["bounds"])
+        try:
+            spec["bounds"] = tuple(tuple(b) for b in spec["bounds"])
+        except TypeError:
+            raise ConstraintError(f"constraint {label!r}: bounds must be a list of [low, high] pairs, "
+                                  f"got {spec['bounds']!r}") from None
     return _CLASSES[fam](**spec)
 
 

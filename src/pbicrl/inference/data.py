@@ -135,15 +135,19 @@ def resolve_dataset_path(name_or_path: str | os.PathLike[str]) -> Path:
     if not isinstance(text, str) or not text.strip():
         raise DatasetNotFoundError(f"data: expected a dataset file or the name of a shipped dataset, got {text!r}")
     p = Path(text).expanduser()
-    if p.is_file():
-        return p
-    if not p.is_absolute() and len(Path(text).parts) == 1:  # a bare name may be a shipped dataset
-        stem = p.stem if p.suffix == ".npz" else p.name
-        shipped = shipped_dir() / f"{stem}.npz"
-        if shipped.is_file():
-            return shipped
-    if p.exists() or p.is_symlink():
-        return p  # a directory, device, pipe or dangling link: loading says what is wrong with it
+    try:
+        if p.is_file():
+            return p
+        if not p.is_absolute() and len(Path(text).parts) == 1:  # a bare name may be a shipped dataset
+            stem = p.stem if p.suffix == ".npz" else p.name
+            shipped = shipped_dir() / f"{stem}.npz"
+            if shipped.is_file():
+                return shipped
+        if p.exists() or p.is_symlink():
+            return p  # a directory, device, pipe or dangling link: loading says what is wrong with it
+    except OSError as exc:  # a name longer than the file system allows, a loop of links, ...
+        shown = text if len(text) <= 80 else text[:60] + f"... ({len(text):,} characters)"
+        raise DatasetNotFoundError(f"data: {shown}: cannot be looked up ({exc.strerror or exc})") from None
     names = ", ".join(list_shipped_datasets()) or "none"
     raise DatasetNotFoundError(f"data: {text}: no such file, and no shipped dataset of that name "
                                f"(shipped datasets: {names})")

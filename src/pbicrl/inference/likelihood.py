@@ -50,9 +50,26 @@ from pbicrl.inference.data import Dataset
 from pbicrl.inference.preferences import RANKED_MIN_GROUPS, Margins, PreferenceError, Preferences
 
 __all__ = ["PreferenceLikelihood", "log_likelihood", "log_likelihood_numpy", "scaled_returns", "pairwise_power",
-           "LIKELIHOODS"]
+           "LIKELIHOODS", "BETA_RANGE", "check_beta"]
 
 LIKELIHOODS = ("pairwise", "grouped")
+
+BETA_RANGE = (1e-6, 1e6)
+"""Inverse temperatures accepted. The likelihood and the identification bounds scale returns by beta (and the
+admissible penalties by 1/beta): within this range they stay finite for any finite features and prior; at
+1e308 the returns overflow and every draw is NaN."""
+
+
+def check_beta(beta: float, field: str = "beta") -> float:
+    """``beta`` as a float, or a ValueError naming ``field`` and :data:`BETA_RANGE`."""
+    try:
+        b = float(beta)
+    except (TypeError, ValueError):
+        raise ValueError(f"{field}: the inverse temperature must be a number, got {beta!r}") from None
+    if not (BETA_RANGE[0] <= b <= BETA_RANGE[1]):  # NaN fails too
+        raise ValueError(f"{field}: the inverse temperature must lie in [{BETA_RANGE[0]:g}, {BETA_RANGE[1]:g}] to "
+                         f"keep the likelihood finite, got {beta!r}")
+    return b
 
 
 def scaled_returns(mean_features: NDArray[np.float64], weights: ArrayLike, beta: float = 1.0) -> NDArray[np.float64]:
@@ -102,9 +119,7 @@ class PreferenceLikelihood:
             raise ValueError(f"nominal_weights: expected {F.shape[1]} values (one per feature), got {wn.size}")
         if not np.all(np.isfinite(wn)):
             raise ValueError("nominal_weights: contains NaN or inf")
-        beta = float(self.beta)
-        if not (np.isfinite(beta) and beta > 0):
-            raise ValueError(f"beta: the inverse temperature must be a positive finite number, got {self.beta}")
+        beta = check_beta(self.beta)
         power = float(self.power)
         if not (np.isfinite(power) and 0.0 < power <= 1.0):
             raise ValueError(f"power: the likelihood power must lie in (0, 1], got {self.power}")

@@ -23,7 +23,12 @@ from typing import Iterator, Literal, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Margins", "Preferences", "PreferenceError", "RANKED_MIN_GROUPS"]
+__all__ = ["Margins", "Preferences", "PreferenceError", "RANKED_MIN_GROUPS", "MARGIN_MAX"]
+
+MARGIN_MAX = 1e9
+"""Largest margin magnitude accepted. A margin enters the log-likelihood as it is (``log sigmoid(z - m)``): up to
+1e9 every term, sum and the identification LP stay finite; beyond, a margin says no more (every ranking already
+has probability 0 at 1e9) and 1e308 overflows to NaN draws reported as a normal posterior."""
 
 
 class PreferenceError(ValueError):
@@ -66,6 +71,9 @@ class Margins:
             raise PreferenceError(f"margins: expected a K x K matrix with K >= 2, got shape {m.shape}")
         if not np.all(np.isfinite(m)):
             raise PreferenceError("margins: contains NaN or inf")
+        if np.any(np.abs(m) > MARGIN_MAX):
+            raise PreferenceError(f"margins: {np.abs(m).max():g} is out of range; margins must lie within "
+                                  f"+-{MARGIN_MAX:g} to keep the likelihood finite")
         lower = np.tril(m, 0)
         if np.any(lower != 0):
             raise PreferenceError("margins: only the upper triangle (k < l) may be non-zero; "
@@ -85,6 +93,9 @@ class Margins:
             raise PreferenceError(f"margins: need offsets for K >= 2 groups, got {o.size}")
         if not np.all(np.isfinite(o)):
             raise PreferenceError("margins: contains NaN or inf")
+        if np.any(np.abs(o - o[0]) > MARGIN_MAX):
+            raise PreferenceError(f"margins: {np.abs(o - o[0]).max():g} is out of range; margins must lie within "
+                                  f"+-{MARGIN_MAX:g} to keep the likelihood finite")
         out = cls.__new__(cls)
         object.__setattr__(out, "_matrix", None)
         object.__setattr__(out, "_offsets", o - o[0])

@@ -74,7 +74,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl import errors
-from pbicrl._atomic import OutputBusyError, OutputExistsError, atomic_dir, clean_stale_temporaries
+from pbicrl._atomic import (OUTPUT_MARKER, OutputBusyError, OutputExistsError, atomic_dir, check_replaceable,
+                            clean_stale_temporaries, inputs_inside)
 from pbicrl.analysis.diagnostics import split_rhat
 from pbicrl.inference.codes import (C_EVALS, C_FLIP_ACC, C_FLIP_PROP, C_T_ACC, C_T_PROP, C_W_ACC, C_W_PROP,
                                     N_COUNTS)
@@ -1026,12 +1027,13 @@ class Posterior(DrawsView):
                 "at w_p = 0 and show '-'")
 
     def save(self, out_dir: str | os.PathLike[str], *, overwrite: bool = False,
-             extra_json: dict[str, Any] | None = None) -> Path:
+             extra_json: dict[str, Any] | None = None, inputs: Sequence[Any] = ()) -> Path:
         """Write ``summary.json`` and ``chains.npz`` (and any ``extra_json`` files) to ``out_dir`` atomically; with
         a dataset kept in memory (:meth:`keep_dataset`) and no file recorded, also a copy of it,
         :data:`~pbicrl.runs.DATASET_FILE`, so that the export can rebuild the pointwise log-likelihood.
 
-        :meth:`load` reads it back. ``overwrite=True`` replaces a previous run directory, never anything else.
+        :meth:`load` reads it back. ``overwrite=True`` replaces a previous run directory holding only what
+        pbicrl wrote there, never anything else, nor a directory holding one of ``inputs`` (paths).
 
         Raises
         ------
@@ -1060,7 +1062,7 @@ class Posterior(DrawsView):
             # an in-memory dataset: stored with the run, so that the export can always rebuild the likelihood
             npz[DATASET_FILE] = self.dataset.to_arrays()
         return write_run_dir(out_dir, {"summary.json": self.summary(), **(extra_json or {})}, npz,
-                             overwrite=overwrite)
+                             overwrite=overwrite, inputs=inputs)
 
     # ------------------------------------------------------------------ internals
     def _ident_entry(self, name: str) -> dict[str, Any] | None:
@@ -1490,7 +1492,8 @@ def release_out_dir(out_dir: str | os.PathLike[str] | None = None) -> None:
         os.close(fd)
 
 
-def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, claim: bool = False) -> Path:
+def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, claim: bool = False,
+                  inputs: Sequence[Any] = ()) -> Path:
     """Fail early (before sampling) when ``out_dir`` could not be written by :func:`write_run_dir`.
 
     Parameters
@@ -1501,6 +1504,8 @@ def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, c
     claim : bool
         Also claim the directory for this process (:func:`claim_out_dir`) until :func:`write_run_dir` has
         written it (or :func:`release_out_dir`), so that a concurrent run to the same directory fails now.
+    inputs : sequence of path
+        The command's inputs (dataset, config): none may be ``out_dir`` or lie inside it.
 
     Raises
     ------
@@ -1526,10 +1531,13 @@ def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, c
     if parent.exists() and not parent.is_dir():
         raise FileExistsError(f"out_dir: {parent} is a file, not a directory")
     _check_writable(parent)
+    inside = inputs_inside(out, inputs)
+    if inside:
+        raise FileExistsError(f"out_dir: {out} holds this command's input {inside[0]}; choose another directory")
     if claim:
         claim_out_dir(out)
     try:
-        _check_existing(out, overwrite)
+        _check_existing(out, overwrite, inputs)
     except BaseException:
         if claim:
             release_out_dir(out)
@@ -1537,24 +1545,44 @@ def check_out_dir(out_dir: str | os.PathLike[str], *, overwrite: bool = False, c
     return out
 
 
-def _check_existing(out: Path, overwrite: bool) -> None:
+#: What a run directory written before markers (:data:`pbicrl._atomic.OUTPUT_MARKER`) may hold: the files
+#: ``write_run_dir`` wrote, and what the labelling page added (its dataset and figures).
+_LEGACY_RUN_ENTRIES = frozenset({"summary.json", "chains.npz", "check.json", "tuning.json", "data.npz", "plots"})
+_FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def _legacy_run_entries(out: Path) -> set[str] | None:
+    if not is_run_dir(out):
+        return None
+    plots = out / "plots"
+    if plots.is_dir() and not plots.is_symlink() and not all(
+            p.is_file() and p.suffix in _FIGURE_SUFFIXES for p in plots.iterdir()):
+        return set(_LEGACY_RUN_ENTRIES - {"plots"})  # plots/ holds something else: not ours to remove
+    return set(_LEGACY_RUN_ENTRIES)
+
+
+def _check_existing(out: Path, overwrite: bool, inputs: Sequence[Any] = ()) -> None:
     if out.exists() and not (out.is_dir() and not any(out.iterdir())):
         if not overwrite:
             raise OutputExistsError("out_dir", out)
-        if not is_run_dir(out):
-            # overwrite replaces a previous run only: never a data file or an unrelated directory
-            what = "a file" if not out.is_dir() else "a directory that is not a pbicrl run (no summary.json)"
-            raise FileExistsError(f"out_dir: {out} is {what}; overwrite only replaces a previous run directory")
+        # overwrite replaces a run directory pbicrl wrote and nothing else: never a data file, an unrelated
+        # directory, a file pbicrl did not put there, or the command's own input
+        check_replaceable(out, "run", field="out_dir", inputs=inputs, legacy=_legacy_run_entries)
+    elif inputs_inside(out, inputs):
+        raise FileExistsError(f"out_dir: {out} holds this command's input {inputs_inside(out, inputs)[0]}; "
+                              "choose another directory")
 
 
 def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], npz_files: dict[str, dict[str, Any]],
-                  *, overwrite: bool = False) -> Path:
+                  *, overwrite: bool = False, inputs: Sequence[Any] = ()) -> Path:
     """Create ``out_dir`` with the given files in one atomic rename (no half-written directory).
 
     JSON content goes through :func:`json_safe` (non-finite numbers become ``null``) and is written with
     ``allow_nan=False``, so every file is valid JSON. The directory is claimed while it is written
     (:func:`claim_out_dir`; a claim this process took before, e.g. by :func:`check_out_dir`, ends here) and
-    gets the permissions of the process's umask, as a plain ``mkdir`` would.
+    gets the permissions of the process's umask, as a plain ``mkdir`` would. A marker
+    (:data:`pbicrl._atomic.OUTPUT_MARKER`) records the directory as a run and the files in it, so that a later
+    ``overwrite`` replaces it only while it holds nothing else, and never while it holds one of ``inputs``.
 
     Raises
     ------
@@ -1580,7 +1608,7 @@ def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], n
         clean_stale_temporaries(out)
         if out.is_symlink():
             raise FileExistsError(f"out_dir: {out} is a symbolic link; give a real directory path")
-        _check_existing(out, overwrite)
+        _check_existing(out, overwrite, inputs)
         if out.is_dir() and not any(out.iterdir()):
             out.rmdir()
         with atomic_dir(out, replace=True) as tmp:
@@ -1588,6 +1616,7 @@ def write_run_dir(out_dir: str | os.PathLike[str], json_files: dict[str, Any], n
                 (tmp / name).write_text(text)
             for name, arrays in npz_files.items():
                 np.savez_compressed(tmp / name, **arrays)
+            (tmp / OUTPUT_MARKER).write_text(json.dumps({"kind": "run", "entries": sorted([*texts, *npz_files])}) + "\n")
     finally:
         release_out_dir(out)
     return out

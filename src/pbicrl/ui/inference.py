@@ -11,6 +11,7 @@ with one that reports to the parent (``pbicrl.infer`` has no progress callback o
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import queue
 import threading
 import time
@@ -169,8 +170,15 @@ def summarise(run: Any, labelled: Any) -> dict[str, Any]:
                                       "target_rhat")}}
 
 
-def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: Any) -> None:
-    """Body of the child process (module level: ``spawn`` pickles it by name)."""
+def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: Any, parent: int | None = None) -> None:
+    """Body of the child process (module level: ``spawn`` pickles it by name).
+
+    It ends with its parent, however the parent ends (``SIGKILL`` included), and removes the snapshot folder
+    it was given once it has read the snapshot, so a killed server leaves neither a process nor a folder.
+    """
+    from pbicrl.inference.samplers.driver import die_with_parent
+
+    die_with_parent(parent)
     try:
         import warnings
 
@@ -185,6 +193,11 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
             driver.progress_bar = lambda total, enabled: _Reporter(total, q)  # this process only
         q.put(("progress", 0.0, "preparing"))
         full = load_dataset(labelling_path, allow_unlabelled=True)
+        snapshot_dir = Path(labelling_path).parent
+        if snapshot_dir.name.startswith("pbicrl-label-"):  # the server's private copy: read, no longer needed
+            import shutil
+
+            shutil.rmtree(snapshot_dir, ignore_errors=True)
         labelled = full.labelled()
         rd = Path(run_dir)
         post = infer(labelled, iterations=settings.iterations, chains=settings.chains, jobs=None, max_time=_PAGE_MAX_TIME,
@@ -192,8 +205,12 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
                      progress=True)
         data_path = rd / "data.npz"
         post.extra.setdefault("data", {})["path"] = str(data_path)
+        # replaces only a run directory this page (or pbicrl) wrote and that holds nothing else
         post.save(rd, overwrite=True)
         labelled.save(data_path)
+        from pbicrl._atomic import mark_output
+
+        mark_output(rd, "run", ["data.npz"])
         run = load_run(rd)
         result = summarise(run, labelled)
         result["run_dir"] = str(rd)
@@ -204,6 +221,7 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
                 from pbicrl.analysis.plots import plot_run
 
                 figures = [p.name for p in plot_run(run, rd / "plots", dataset=labelled)]
+                mark_output(rd, "run", ["plots"])
             except ImportError as exc:
                 result["figures_note"] = f"no figures: {exc}"
         result["figures"] = figures
@@ -258,7 +276,8 @@ class InferenceJob:
                 raise JobBusy("inference: one is already running; wait for it to finish")
             ctx = mp.get_context("spawn")
             q = ctx.Queue()
-            proc = ctx.Process(target=_child, args=(str(labelling_path), str(run_dir), settings, q), daemon=True)
+            proc = ctx.Process(target=_child, args=(str(labelling_path), str(run_dir), settings, q, os.getpid()),
+                               daemon=True)
             proc.start()
             self.status, self.progress, self.phase, self.message, self.result = "running", 0.0, "starting", "", None
             self.revision, self.started, self.finished, self._proc = revision, time.monotonic(), None, proc

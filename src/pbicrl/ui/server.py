@@ -19,14 +19,19 @@ Routes (JSON unless stated; every error is ``{"error": message}`` with a 4xx sta
 
 Each change carries the revision the page last saw; a stale one gets HTTP 409 (another tab changed the
 labels), as does an output file changed on disk by another program. Requests must send JSON
-(``Content-Type: application/json``) and, when the server listens on a loopback address, name a loopback
-host: a web page elsewhere cannot post to the app (no CORS headers either).
+(``Content-Type: application/json``) of at most :data:`MAX_BODY_BYTES` (counted while it streams in, chunked
+or not), nested at most :data:`MAX_DEPTH` deep, with integers of at most 2**53 in magnitude and no NaN or
+Infinity (400 otherwise). Every request must name an allowed host (the loopback names when the server listens
+on a loopback address; otherwise exactly the ``--allow-host`` names), and a request that changes anything and
+carries an ``Origin`` must come from the served address itself: a web page elsewhere cannot post to the app
+(no CORS headers either).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import os
 import re
 import shutil
 import tempfile
@@ -39,10 +44,64 @@ from pbicrl.ui.inference import InferenceJob, InferenceSettings, JobBusy, run_di
 from pbicrl.ui.scenes import scene_for, thumbnail_payload, trajectory_payload
 from pbicrl.ui.session import Conflict, LabelSession, SessionError
 
-__all__ = ["create_app", "LOOPBACK_HOSTS", "MAX_BODY_BYTES"]
+__all__ = ["create_app", "LOOPBACK_HOSTS", "MAX_BODY_BYTES", "MAX_DEPTH", "check_json"]
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]", "::1")
 MAX_BODY_BYTES = 1 << 20  # a change is a few hundred bytes; a list of every id of a big pool, a few hundred KiB
+MAX_DEPTH = 32  # the deepest request is an object holding a list of lists
+_MAX_INT = 1 << 53  # what the page's JavaScript numbers hold exactly
+_SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
+
+
+def check_json(value: Any, where: str = "body") -> None:
+    """Refuse a parsed JSON body nested deeper than :data:`MAX_DEPTH` or holding an integer beyond 2**53.
+
+    Raises
+    ------
+    ValueError
+        Naming the place (``body.margins[1]``).
+    """
+    stack: list[tuple[Any, str, int]] = [(value, where, 0)]
+    while stack:
+        v, at, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            raise ValueError(f"{where}: nested more than {MAX_DEPTH} deep")
+        if isinstance(v, dict):
+            stack.extend((x, f"{at}.{k}", depth + 1) for k, x in v.items())
+        elif isinstance(v, list):
+            stack.extend((x, f"{at}[{i}]", depth + 1) for i, x in enumerate(v))
+        elif isinstance(v, int) and not isinstance(v, bool) and abs(v) > _MAX_INT:
+            raise ValueError(f"{at}: integer {str(v)[:20]}{'...' if len(str(v)) > 20 else ''} is out of range "
+                             f"(at most 2**53 in magnitude)")
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+class _SameOrigin:
+    """ASGI middleware: a request that changes state and names an ``Origin`` must name the served address.
+
+    The ``Host`` header is checked first (``TrustedHostMiddleware``), so ``http://<Host>`` is the address the
+    page was served from; a browser sends ``Origin`` with every ``POST``, so a page elsewhere is refused.
+    """
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] == "http" and scope.get("method", "GET") not in _SAFE_METHODS:
+            headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+            origin = headers.get("origin")
+            if origin is not None and origin not in (f"http://{headers.get('host', '')}",
+                                                     f"https://{headers.get('host', '')}"):
+                from starlette.responses import JSONResponse
+
+                shown = origin if len(origin) <= 100 else origin[:100] + "..."
+                await JSONResponse({"error": f"origin: requests from {shown!r} are refused; use the page this "
+                                             "server serves"}, status_code=403)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
 _STATIC = {"app.js": "text/javascript; charset=utf-8", "app.css": "text/css; charset=utf-8",
            "index.html": "text/html; charset=utf-8"}
 _FIGURE = re.compile(r"^[a-z_]+\.png$")
@@ -52,15 +111,23 @@ def _static(name: str) -> bytes:
     return (resources.files("pbicrl.ui") / "static" / name).read_bytes()
 
 
-def create_app(session: LabelSession, *, host: str = "127.0.0.1") -> Any:
+def create_app(session: LabelSession, *, host: str = "127.0.0.1", allow_hosts: Any = ()) -> Any:
     """The Starlette app for ``session``.
 
     Parameters
     ----------
     session : LabelSession
     host : str
-        Address the server listens on. For a loopback address, requests must name a loopback host (or
-        ``testserver``, Starlette's test client), which keeps other web pages (DNS rebinding) out.
+        Address the server listens on. For a loopback address, requests must name a loopback host (which
+        keeps other web pages out: DNS rebinding) or one of ``allow_hosts``.
+    allow_hosts : sequence of str
+        Host names requests may name (``--allow-host``); required when ``host`` is not a loopback address,
+        where they are the only names accepted.
+
+    Raises
+    ------
+    ValueError
+        ``host`` is not a loopback address and ``allow_hosts`` is empty.
     """
     require_ui_extra()
     from starlette.applications import Starlette
@@ -71,6 +138,7 @@ def create_app(session: LabelSession, *, host: str = "127.0.0.1") -> Any:
     from starlette.responses import JSONResponse, Response
     from starlette.routing import Route
 
+    _clean_stale_snapshots()
     job = InferenceJob()
     scene = scene_for(session.base, session.env_id)
     cache: dict[str, Any] = {}
@@ -85,15 +153,25 @@ def create_app(session: LabelSession, *, host: str = "127.0.0.1") -> Any:
         declared = request.headers.get("content-length", "")
         if declared.isdigit() and int(declared) > MAX_BODY_BYTES:
             raise _HttpError(413, f"body: {int(declared):,} bytes, at most {MAX_BODY_BYTES:,}")
-        raw = await request.body()
-        if len(raw) > MAX_BODY_BYTES:
-            raise _HttpError(413, f"body: {len(raw):,} bytes, at most {MAX_BODY_BYTES:,}")
+        chunks, size = [], 0
+        async for chunk in request.stream():  # counted as it arrives: a chunked body declares no length
+            size += len(chunk)
+            if size > MAX_BODY_BYTES:
+                raise _HttpError(413, f"body: more than {MAX_BODY_BYTES:,} bytes")
+            chunks.append(chunk)
+        raw = b"".join(chunks)
         try:
-            body = json.loads(raw.decode("utf-8"))
+            body = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
+        except RecursionError:
+            raise _HttpError(400, f"body: nested more than {MAX_DEPTH} deep") from None
         except (UnicodeDecodeError, ValueError) as exc:
             raise _HttpError(400, f"body: not valid JSON ({str(exc).splitlines()[0]})") from None
         if not isinstance(body, dict):
             raise _HttpError(400, "body: expected a JSON object")
+        try:
+            check_json(body)
+        except ValueError as exc:
+            raise _HttpError(400, str(exc)) from None
         return body
 
     def change(fn: Callable[[dict[str, Any]], dict[str, Any]]) -> Callable[[Request], Awaitable[Response]]:
@@ -173,7 +251,7 @@ def create_app(session: LabelSession, *, host: str = "127.0.0.1") -> Any:
         if settings.margins is not None and len(settings.margins) != ds.n_groups - 1:
             return error(422, f"margins: {ds.n_groups} non-empty groups need {ds.n_groups - 1} gaps, "
                               f"got {len(settings.margins)}")
-        tmp = Path(tempfile.mkdtemp(prefix="pbicrl-label-"))
+        tmp = Path(tempfile.mkdtemp(prefix=f"{_TMP_PREFIX}{os.getpid()}-"))
         snap = tmp / "labelling.npz"
         ds.save(snap, compress=False)
         try:
@@ -220,10 +298,15 @@ def create_app(session: LabelSession, *, host: str = "127.0.0.1") -> Any:
         Route("/api/infer", infer_start, methods=["POST"]), Route("/api/infer", infer_status, methods=["GET"]),
         Route("/api/figures/{name}", figure),
     ]
-    middleware = []
+    extra = [str(h).strip() for h in allow_hosts if str(h).strip()]
     if host in LOOPBACK_HOSTS:
-        middleware.append(Middleware(TrustedHostMiddleware, allowed_hosts=["127.0.0.1", "localhost", "[::1]", "::1",
-                                                                          "testserver"]))
+        allowed = [*LOOPBACK_HOSTS, *extra]
+    elif extra:
+        allowed = extra
+    else:
+        raise ValueError(f"allow_host: listening on {host!r} (not this machine only) needs the host names clients "
+                         "will use, e.g. --allow-host myhost.lan (anyone reaching them can change the labels)")
+    middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=allowed), Middleware(_SameOrigin)]
     @contextlib.asynccontextmanager
     async def lifespan(app: Any) -> AsyncIterator[None]:
         yield
@@ -236,6 +319,25 @@ def create_app(session: LabelSession, *, host: str = "127.0.0.1") -> Any:
     app.state.session = session
     app.state.job = job
     return app
+
+
+_TMP_PREFIX = "pbicrl-label-"
+
+
+def _clean_stale_snapshots() -> None:
+    """Remove the snapshot folders (``pbicrl-label-<pid>-*``) of labelling servers that were killed."""
+    from pbicrl._atomic import pid_alive
+
+    root = Path(tempfile.gettempdir())
+    try:
+        entries = list(root.glob(f"{_TMP_PREFIX}*-*"))
+    except OSError:
+        return
+    for d in entries:
+        pid = d.name[len(_TMP_PREFIX):].split("-", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not pid_alive(int(pid)) and d.is_dir() \
+                and not d.is_symlink() and d.stat().st_uid == os.getuid():
+            shutil.rmtree(d, ignore_errors=True)
 
 
 class _HttpError(Exception):

@@ -49,6 +49,31 @@ EXPERIMENTS: dict[str, Callable[[Context], Path]] = {
 EXPERIMENTS["icl"] = exp_icl  # not in `reproduce all`: hours of RL per seed
 
 
+#: The datasets whose file ``data`` may replace.
+DATA_NAMES = ("point_mass", "fetch_reach", "halfcheetah", "ant")
+
+
+def _check_data_overrides(data: dict[str, str] | None) -> None:
+    """Every override names a known dataset and has the shipped dataset's layout (features, state dimensions)."""
+    from pbicrl.experiments.reproduce.configs import has_data, shipped_path
+    from pbicrl.inference.data import load_dataset
+
+    for name, path in (data or {}).items():
+        if name not in DATA_NAMES:
+            raise ValueError(f"data: unknown dataset name {name!r}; the experiments read {', '.join(DATA_NAMES)}")
+        ds = load_dataset(path)
+        if not has_data(name):
+            continue
+        ref = load_dataset(shipped_path(name))
+        checks = (("features", ds.feature_names, ref.feature_names),
+                  ("state dimensions", None if ds.states is None else ds.states.shape[1:],
+                   None if ref.states is None else ref.states.shape[1:]))
+        for what, got, want in checks:
+            if got != want:
+                raise ValueError(f"data: {name}={path} has {what} {got}, the experiments on {name} need {want} "
+                                 f"(those of the shipped {name}.npz)")
+
+
 def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = False, pairs: str = "all",
               seeds: int = 5, executor: Any = "local", workers: int | None = None, progress: bool = True,
               iterations: int | None = None, data: dict[str, str] | None = None, **deprecated: Any) -> list[Path]:
@@ -89,6 +114,7 @@ def reproduce(experiment: str, *, out: str | Path = "results", quick: bool = Fal
             raise ValueError(f"experiment: unknown {n!r}; choose one of {', '.join(EXPERIMENTS)} or all")
     if int(seeds) < 1:
         raise ValueError(f"seeds: need at least 1, got {seeds}")
+    _check_data_overrides(data)  # before hours of sampling: a wrong file must not fail at the end
     ctx = Context(Path(out), quick, pairs, int(seeds), executor, workers, progress, iterations, data)
     reports = []
     import warnings
