@@ -116,6 +116,7 @@ def infer(
     target_ess: float = _D.target_ess,
     target_rhat: float = _D.target_rhat,
     max_time: float = _D.max_time,
+    log_moves: bool | None = None,
     alpha: float = _D.alpha,
     progress: bool = True,
     **deprecated: Any,
@@ -176,6 +177,9 @@ def infer(
         Parametric constraints over the dataset's states (axis halfspace, halfspace, box, ball).
     sigma_theta, p_theta
         Parameter random-walk step and move probability (see :class:`~pbicrl.inference.samplers.SamplerSettings`).
+    log_moves : bool, optional
+        ``pbicrl`` sampler: move sign-constrained penalties on ``log|w|`` (default); ``False``: the moves on ``w`` of
+        earlier releases (:class:`~pbicrl.inference.samplers.SamplerSettings`).
     p_joint : float, optional
         ``pbicrl``/``bpl`` samplers: probability of the joint step of all active weights (covariance adapted in
         warm-up), in [0, 1); default 0.3 for ``pbicrl`` run until converged, else 0; ``p_flip`` + ``p_theta`` +
@@ -259,7 +263,7 @@ def infer(
         p_flip=p_flip, init_scale=init_scale, init_range=tuple(init_range), weight_prior=wprior,
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
         candidates=resolve_candidates(dataset, candidates, cset), sigma_theta=sigma_theta, p_theta=p_theta,
-        p_joint=float(p_joint))
+        p_joint=float(p_joint), log_moves=log_moves)
     if settings.n_draws < MIN_DRAWS:  # before identification and sampling: one draw is no posterior
         raise ConfigError(f"iterations: {int(iterations):,} iterations with burn_in {settings.burn_in_:,} and thin "
                           f"{settings.thin_:,} keep {settings.n_draws} draw(s) per chain; at least {MIN_DRAWS} are "

@@ -327,6 +327,11 @@ def _read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
             heads = [n.rsplit(".", 1)[0] for n in pnames]
             owner = tuple(names.index(h) for h in heads) if all(h in names for h in heads) else ()
     for key, arr in (("penalty_weights", wp), ("log_likelihood", ll), ("parameters", params)):
+        if arr is not None and key == "parameters":
+            # NaN marks the parameters of a constraint that is switched off in that draw (by design); only an
+            # infinite value, or NaN where its constraint is on, is a draw without meaning
+            on = ind[:, :, list(owner)].astype(bool) if owner and len(owner) == arr.shape[2] else np.ones(arr.shape, bool)
+            arr = np.where(on, arr, 0.0)
         bad = 0 if arr is None else int(arr.size - np.count_nonzero(np.isfinite(arr)))
         if bad:  # NaN draws: every figure, diagnostic, export or check of them would be a number without meaning
             raise RunError(f"{cz}: field '{key}' holds {bad:,} NaN or infinite values: the run has no usable draws "

@@ -200,7 +200,7 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
             shutil.rmtree(snapshot_dir, ignore_errors=True)
         labelled = full.labelled()
         rd = Path(run_dir)
-        post = infer(labelled, iterations=settings.iterations, chains=settings.chains, jobs=None, max_time=_PAGE_MAX_TIME,
+        post = infer(labelled, iterations=settings.iterations, chains=settings.chains, jobs=1, max_time=_PAGE_MAX_TIME,
                      seed=settings.seed, margins=None if settings.margins is None else list(settings.margins),
                      progress=True)
         data_path = rd / "data.npz"
