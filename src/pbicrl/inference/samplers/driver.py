@@ -476,20 +476,7 @@ def _run_pool(kernel: Kernel, seeds: Sequence[np.random.SeedSequence], n_jobs: i
                                initargs=(counter, os.getpid()))
     try:
         futures = [pool.submit(_worker, (kernel, s)) for s in seeds]
-        last = 0
-        while not all(f.done() for f in futures):
-            time.sleep(0.1)
-            v = counter.value
-            if bar is not None:
-                bar.update(v - last)
-            last = v
-        try:
-            results = [f.result() for f in futures]
-        except BrokenProcessPool:
-            raise RuntimeError("sampling: a chain worker process died (killed for memory, or by a signal); "
-                               "rerun with fewer --jobs or chains") from None
-        if bar is not None:
-            bar.update(counter.value - last)
+        results = _collect(futures, counter, bar, 0)
     except BaseException:
         # Ctrl-C, an error, or a failing chain: stop the other chains now instead of waiting for them
         stop_pool(pool)
@@ -764,7 +751,11 @@ def _run_round(tasks: list[tuple[Any, ...]], pool: Any, counter: Any, bar: Any, 
             _progress_counter = saved
     start = counter.value
     futures = [pool.submit(_auto_worker, t) for t in tasks]
-    last = start
+    return _collect(futures, counter, bar, start)
+
+
+def _collect(futures: list[Any], counter: Any, bar: Any, last: int) -> list[Any]:
+    """Wait for the chains' futures, moving the progress bar by the workers' shared counter (from ``last``)."""
     while not all(f.done() for f in futures):
         time.sleep(0.1)
         v = counter.value
