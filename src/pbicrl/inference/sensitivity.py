@@ -135,14 +135,8 @@ def sample_prior(spec: Mapping[str, Any], rng: np.random.Generator, size: int) -
     loc, scale = spec.get("loc", spec.get("mean", 0.0)), spec.get("scale")
     if not isinstance(scale, (int, float)) or not scale > 0 or loc is None:
         return None
-    if kind == "normal":
-        dist: Any = stats.norm
-    elif kind in ("student_t", "studentt", "student-t", "t", "cauchy"):
-        df = 1.0 if kind == "cauchy" else spec.get("df", spec.get("nu"))
-        if not isinstance(df, (int, float)) or not df > 0:
-            return None
-        dist = stats.t(float(df))
-    else:
+    dist = _standard_dist(kind, spec)
+    if dist is None:
         return None
     fa, fb = dist.cdf((lo - loc) / scale), dist.cdf((hi - loc) / scale)
     u = rng.uniform(fa, fb, size)
@@ -189,14 +183,8 @@ def log_prior_density(spec: Mapping[str, Any], w: NDArray[np.float64], *, widen:
     # a finite support end that is not the centre (a box around the location) widens with the scale
     lo = lo if not math.isfinite(lo) or lo == loc else loc + widen * (lo - loc)
     hi = hi if not math.isfinite(hi) or hi == loc else loc + widen * (hi - loc)
-    if kind == "normal":
-        dist: Any = stats.norm
-    elif kind in ("student_t", "studentt", "student-t", "t", "cauchy"):
-        df = 1.0 if kind == "cauchy" else spec.get("df", spec.get("nu"))
-        if not isinstance(df, (int, float)) or not df > 0:
-            return None
-        dist = stats.t(float(df))
-    else:
+    dist = _standard_dist(kind, spec)
+    if dist is None:
         return None
     a, b = (lo - loc) / scale, (hi - loc) / scale
     mass = float(dist.cdf(b) - dist.cdf(a))
@@ -341,3 +329,17 @@ def prior_sensitivity(indicators: NDArray[Any], penalty_weights: NDArray[np.floa
              f"interval's width ({P_TOL:g} for P(c=1)), an interval end also when the wider prior puts "
              f"{TAIL_FACTOR:g}x its tail mass beyond it or, under a bounded prior, when it reaches the bound")
     return PriorSensitivity(basis, fitted, wider, flags, ess, S)
+
+
+def _standard_dist(kind: str, spec: Mapping[str, Any]) -> Any:
+    """The standardised SciPy distribution of a location-scale prior kind (``normal``, Student-t, Cauchy), or None."""
+    from scipy import stats
+
+    if kind == "normal":
+        return stats.norm
+    if kind in ("student_t", "studentt", "student-t", "t", "cauchy"):
+        df = 1.0 if kind == "cauchy" else spec.get("df", spec.get("nu"))
+        if not isinstance(df, (int, float)) or not df > 0:
+            return None
+        return stats.t(float(df))
+    return None
