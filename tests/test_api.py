@@ -12,7 +12,8 @@ import pytest
 
 import pbicrl
 from pbicrl.errors import PbicrlWarning
-from pbicrl.inference.results import OutputExistsError, Posterior
+from pbicrl.inference.posterior import Posterior
+from pbicrl.io.runs import OutputExistsError
 from pbicrl.inference.synthetic import make_problem, make_wall_problem
 
 
@@ -105,7 +106,7 @@ def test_runs_saved_without_counts_or_per_draw_records_still_load(fresh, tmp_pat
 
 
 def test_missing_and_malformed_runs_are_named(tmp_path):
-    from pbicrl.runs import RunError
+    from pbicrl.io.runs import RunError
 
     with pytest.raises(FileNotFoundError, match="no such directory"):
         pbicrl.load_run(tmp_path / "nope")
@@ -166,7 +167,7 @@ def test_reprs_are_short_and_never_dump_arrays(fresh, tmp_path):
     assert f"chains={post.n_chains}" in repr(post) and f"draws={post.n_draws}" in repr(post)
     assert "path=" in repr(loaded) and "path=" not in repr(post)
     assert repr(state).startswith("ChainState(iteration=0, d=4,") and f"N={big.n_trajectories}" in repr(state)
-    from pbicrl.runs import load_run as load_record
+    from pbicrl.io.runs import read_run as load_record
 
     assert len(repr(load_record(tmp_path / "run"))) < 300
 

@@ -97,8 +97,59 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 @pytest.mark.parametrize("lazy", [False, True], ids=["module level", "with imports inside functions"])
 def test_there_are_no_import_cycles(lazy):
-    graph = {m: _imports(p, lazy=lazy) - {m} for m, p in MODULES.items()}
+    graph = {m: _imports(p, lazy=lazy) - {m} - {b for a, b in FACADE_IMPORTS if a == m} for m, p in MODULES.items()}
     assert _cycles(graph) == []
+
+
+# ---- layering: inference/ is the bottom stage; nothing in it imports analysis/, io/ or cli/, not even lazily
+
+UPPER_STAGES = ("pbicrl.analysis", "pbicrl.io", "pbicrl.cli")
+
+#: The only ways up from inference/, each inside one method or a deprecated alias: (module, module it reaches).
+#: ``Posterior.table()``, ``_repr_html_``, ``to_dataframe()`` (analysis.report), ``diagnostics()``,
+#: ``to_arviz()``, ``save()`` and ``load()`` are entry points kept for users: the code they run lives above and
+#: never needs them, so they are not dependencies (and are left out of the cycle check above).
+#: ``pbicrl.inference.results`` is the deprecated alias module of what moved out (goes in pbicrl 0.3).
+FACADE_IMPORTS: set[tuple[str, str]] = {
+    ("pbicrl.inference.posterior", "pbicrl.analysis.report"),
+    ("pbicrl.inference.posterior", "pbicrl.analysis.diagnostics"),
+    ("pbicrl.inference.posterior", "pbicrl.analysis.export"),
+    ("pbicrl.inference.posterior", "pbicrl.io.runs"),
+    ("pbicrl.inference.results", "pbicrl.io.outdir"),
+}
+
+
+def _named_modules(path: Path) -> set[str]:
+    """pbicrl modules named by a string constant outside docstrings (``importlib.import_module("pbicrl.x")``)."""
+    tree = ast.parse(path.read_text())
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and n.body
+            and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+    return {n.value for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str) and n.value in MODULES and id(n) not in docs}
+
+
+def _upward(module: str, path: Path) -> set[tuple[str, str]]:
+    used = _imports(path, lazy=True) | _named_modules(path)
+    return {(module, u) for u in used if u.startswith(UPPER_STAGES)}
+
+
+def test_inference_imports_nothing_above_it():
+    inference = {m: p for m, p in MODULES.items() if m == "pbicrl.inference" or m.startswith("pbicrl.inference.")}
+    assert len(inference) > 10  # the scan sees the stage
+    up = set().union(*(_upward(m, p) for m, p in inference.items()))
+    assert sorted(up - FACADE_IMPORTS) == [], "inference/ must not import analysis/, io/ or cli/"
+    assert sorted(FACADE_IMPORTS - up) == []  # an entry point that is gone: drop it from the list
+    at_module_level = {(m, u) for m, p in inference.items() for u in _imports(p, lazy=False) if u.startswith(UPPER_STAGES)}
+    assert at_module_level == set()
+
+
+def test_the_layering_check_sees_lazy_and_dynamic_imports(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text('"""pbicrl.analysis.plots in a docstring does not count."""\nimport importlib\n\n'
+                 'def f():\n    from pbicrl.io import csv\n    return importlib.import_module("pbicrl.cli.app")\n')
+    assert _upward("pbicrl.inference.x", f) == {("pbicrl.inference.x", "pbicrl.io.csv"),
+                                                ("pbicrl.inference.x", "pbicrl.cli.app")}
 
 
 def test_the_cycle_finder_finds_cycles():

@@ -538,7 +538,7 @@ def test_temporaries_of_killed_writers_are_cleaned_and_nothing_is_lost(tmp_path)
 _KILLED_RUN_DIR = textwrap.dedent("""
     import os, signal, sys
     import numpy as np
-    from pbicrl.inference import results
+    from pbicrl.io import runs as results
     real = np.savez_compressed
     def die(*a, **k):
         real(*a, **k)
@@ -560,7 +560,7 @@ def test_a_run_dir_writer_killed_mid_write_leaves_only_cleanable_temporaries(tmp
     clean_stale_temporaries(out, legacy_age_s=0)  # names without a pid: only age tells (results.py, see report)
     # left: only the killed writer's claim file, which locks nothing once its process is gone
     assert [p.name for p in tmp_path.glob(".run.*")] == [".run.lock"] and (out / "summary.json").exists()
-    from pbicrl.inference import results
+    from pbicrl.io import runs as results
     results.write_run_dir(out, {"summary.json": {"later": 1}}, {}, overwrite=True)  # a later run takes it over
     assert not list(tmp_path.glob(".run.*")) and json.loads((out / "summary.json").read_text()) == {"later": 1}
 
@@ -762,7 +762,7 @@ def test_plot_truth_with_an_unknown_name_is_an_error(run_dir, tmp_path, capsys):
 # ---------------------------------------------------------------------------------------------- 12. concurrent runs, permissions
 def _claim_in_child(out: Path) -> subprocess.Popen:
     """Another process that claims ``out`` (as a running ``pbicrl infer`` does) and holds it until killed."""
-    code = ("import sys; from pbicrl.inference.results import claim_out_dir; "
+    code = ("import sys; from pbicrl.io.runs import claim_out_dir; "
             f"claim_out_dir({str(out)!r}); print('claimed', flush=True); sys.stdin.read()")
     proc = subprocess.Popen([PY, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stdout.readline().strip() == "claimed"
@@ -771,7 +771,7 @@ def _claim_in_child(out: Path) -> subprocess.Popen:
 
 @pytest.mark.skipif(not LINUX, reason="flock")
 def test_a_second_run_to_the_same_out_is_refused_before_sampling(run_dir, demo, tmp_path, capsys):
-    from pbicrl.inference.results import OutputBusyError
+    from pbicrl.io.runs import OutputBusyError
 
     out = tmp_path / "run"
     holder = _claim_in_child(out)

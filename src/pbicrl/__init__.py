@@ -27,7 +27,7 @@ from pbicrl.analysis.identify import Identification, identify
 from pbicrl.inference.likelihood import PreferenceLikelihood, log_likelihood
 from pbicrl.inference.preferences import Margins, PreferenceError, Preferences
 from pbicrl.inference.priors import IndicatorPrior, PriorError, WeightPrior
-from pbicrl.inference.results import Posterior
+from pbicrl.inference.posterior import Posterior
 from pbicrl.inference.samplers import SamplerSettings, build_kernel, sample
 
 _moved.install()

@@ -1,5 +1,5 @@
-"""High-level entry points: ``pbicrl.infer(dataset, ...)`` from a dataset to a :class:`~pbicrl.inference.results.Posterior`,
-and ``pbicrl.load_run(run_dir)`` from a saved run back to one."""
+"""High-level entry points: ``pbicrl.infer(dataset, ...)`` from a dataset to a :class:`~pbicrl.inference.posterior.Posterior`,
+and ``pbicrl.load_run(run_dir)`` (:func:`pbicrl.io.runs.load_run`) from a saved run back to one."""
 
 from __future__ import annotations
 
@@ -15,31 +15,12 @@ from pbicrl.inference.data import Dataset
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.preferences import Margins
 from pbicrl.inference.priors import IndicatorPrior, WeightPrior
-from pbicrl.inference.results import Posterior
+from pbicrl.inference.posterior import Posterior
 from pbicrl.inference.samplers import SamplerSettings, sample
 from pbicrl.inference.samplers.driver import StoppingRule
+from pbicrl.io.runs import load_run  # pbicrl.load_run: the one reader of a run directory into a Posterior
 
 __all__ = ["infer", "infer_from_config", "load_run", "resolve_candidates", "weight_prior_from_config", "MIN_DRAWS"]
-
-
-def load_run(run_dir: str | os.PathLike[str], *, issue_warnings: bool = True) -> Posterior:
-    """Read a run directory (``pbicrl infer --out``, :meth:`Posterior.save`) back into a :class:`Posterior`.
-
-    The same object a fresh :func:`infer` returns: :meth:`~Posterior.table`, :meth:`~Posterior.to_arviz`,
-    :meth:`~Posterior.summary`, :meth:`~Posterior.point_estimate`, :meth:`~Posterior.save`, ... give what they
-    gave before saving. See :meth:`Posterior.load`.
-
-    Raises
-    ------
-    FileNotFoundError
-        No such directory, or ``summary.json`` / ``chains.npz`` missing.
-    pbicrl.runs.RunError
-        A malformed file or a ``summary.json`` written by a newer pbicrl (the message names the file).
-    """
-    post = Posterior.load(run_dir, issue_warnings=False)
-    if issue_warnings:
-        post.emit_warnings(stacklevel=3)  # attributed to the caller of load_run
-    return post
 
 
 def resolve_candidates(dataset: Dataset, candidates: Sequence[str | int] | None,
@@ -133,8 +114,8 @@ def infer(
         a shipped dataset's name (``"example"``), as ``pbicrl infer DATA`` takes them
         (:func:`~pbicrl.inference.data.load_dataset`). The run records the file (when there is one) and the
         dataset's :meth:`~pbicrl.inference.data.Dataset.content_hash` in ``extra["data"]``, and the posterior
-        keeps the dataset, so that :meth:`~pbicrl.inference.results.Posterior.to_arviz` can build the pointwise
-        log-likelihood and :meth:`~pbicrl.inference.results.Posterior.save` can store it with the run.
+        keeps the dataset, so that :meth:`~pbicrl.inference.posterior.Posterior.to_arviz` can build the pointwise
+        log-likelihood and :meth:`~pbicrl.inference.posterior.Posterior.save` can store it with the run.
     sampler : {"pbicrl", "paper", "authors", "bpl"}
         MCMC sampler, see :mod:`pbicrl.inference.samplers.kernels` (formerly ``method``).
     likelihood : {"grouped", "pairwise"}

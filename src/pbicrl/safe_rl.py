@@ -440,9 +440,9 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
     if cost == "inferred":
         if run is None:
             raise ValueError("run: required with cost 'inferred' (the --out directory of pbicrl infer)")
-        from pbicrl.runs import load_run
+        from pbicrl.io.runs import read_run
 
-        record = load_run(run)
+        record = read_run(run)
         run_info = {"path": str(Path(run).resolve()),
                     "sha256": _file_sha256([Path(run) / "summary.json", Path(run) / "chains.npz"])}
     elif run is not None:

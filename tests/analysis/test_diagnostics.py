@@ -11,7 +11,7 @@ import pytest
 import pbicrl
 from pbicrl.analysis import diagnostics
 from pbicrl.cli import main
-from pbicrl.runs import RunError, load_run
+from pbicrl.io.runs import RunError, read_run
 from pbicrl.inference.synthetic import make_problem
 
 
@@ -144,7 +144,7 @@ def test_short_run_is_flagged():
 
 def test_load_run_round_trip(small_post, run_dir):
     post, _ = small_post
-    run = load_run(run_dir)
+    run = read_run(run_dir)
     np.testing.assert_array_equal(run.indicators, post.indicators)
     np.testing.assert_allclose(run.penalty_weights, post.penalty_weights)
     np.testing.assert_allclose(run.log_likelihood, post.log_likelihood)
@@ -158,17 +158,17 @@ def test_load_run_round_trip(small_post, run_dir):
 
 def test_load_run_errors(tmp_path, run_dir):
     with pytest.raises(FileNotFoundError, match="no such directory"):
-        load_run(tmp_path / "nope")
+        read_run(tmp_path / "nope")
     (tmp_path / "r").mkdir()
     (tmp_path / "r" / "summary.json").write_text("{}")
     with pytest.raises(FileNotFoundError, match="chains.npz"):
-        load_run(tmp_path / "r")
+        read_run(tmp_path / "r")
     (tmp_path / "r" / "chains.npz").write_bytes(b"not a zip")
     with pytest.raises(RunError, match="not a readable"):
-        load_run(tmp_path / "r")
+        read_run(tmp_path / "r")
     (tmp_path / "r" / "summary.json").write_text("{")
     with pytest.raises(RunError, match="not valid JSON"):
-        load_run(tmp_path / "r")
+        read_run(tmp_path / "r")
 
 
 def test_to_arviz_variables_named_after_features(small_post):
@@ -206,7 +206,7 @@ def test_netcdf_round_trip_and_cli(run_dir, tmp_path, capsys):
     out = tmp_path / "post.nc"
     assert main(["export", str(run_dir), "--netcdf", str(out)]) == 0
     back = az.from_netcdf(out)
-    run = load_run(run_dir)
+    run = read_run(run_dir)
     names = list(run.feature_names)
     pen = back["posterior"]["penalty"]
     np.testing.assert_allclose(pen.values, run.effective_penalty[:, :, [names.index(n) for n in pen["feature"].values]])

@@ -15,7 +15,7 @@ from pbicrl.errors import PbicrlWarning
 from pbicrl.inference.constraints import ConstraintSet, constraint_from_dict
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.preferences import Margins, Preferences
-from pbicrl.runs import load_run
+from pbicrl.io.runs import read_run
 from pbicrl.inference.samplers import sample
 from pbicrl.inference.synthetic import make_problem, make_wall_problem
 
@@ -179,7 +179,7 @@ def test_kinds_and_shapes_are_checked():
 def test_each_variable_once_and_a_pointwise_log_likelihood(run_dir, ranked):
     pytest.importorskip("arviz")
     prob, post = ranked
-    run = load_run(run_dir)
+    run = read_run(run_dir)
     data = export.to_arviz(run, pointwise_draws=40)  # the dataset is found from the run's recorded path
     p = data["posterior"]
     assert set(p.data_vars) <= {"indicator", "penalty"}  # pbicrl stores w_p = 0 while off: no duplicate
@@ -205,7 +205,7 @@ def test_each_variable_once_and_a_pointwise_log_likelihood(run_dir, ranked):
 def test_az_loo_and_summary(run_dir, ranked):
     az = pytest.importorskip("arviz", reason="the ArviZ checks need arviz (pip install \"pbicrl[diag]\")")
     prob, _ = ranked
-    data = export.to_arviz(load_run(run_dir), pointwise_draws=200)
+    data = export.to_arviz(read_run(run_dir), pointwise_draws=200)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # Pareto-k warnings of short chains are not the point here
         loo = az.loo(data, pointwise=True)
@@ -309,7 +309,7 @@ def test_a_grouped_run_exports_per_trajectory_shares_for_loo(tmp_path):
                             progress=False, weight_prior=pbicrl.WeightPrior("flat", -50, 50))
     assert post.settings["likelihood"] == "grouped"
     post.extra["data"]["path"] = str(data_path)
-    run = load_run(post.save(tmp_path / "run"))
+    run = read_run(post.save(tmp_path / "run"))
     lik, _ = export.run_likelihood(run, prob.dataset)  # rebuilt and checked against the recorded totals
     assert lik.kind == "grouped"
     data = export.to_arviz(run, pointwise_draws=100, pointwise=True)
@@ -395,10 +395,10 @@ def test_thinned_per_draw_records_are_the_iterations_they_stand_for(monkeypatch,
 def test_netcdf_round_trip_keeps_the_thinned_draws(run_dir, tmp_path):
     az = pytest.importorskip("arviz")
     pytest.importorskip("h5netcdf")
-    out = export.to_netcdf(load_run(run_dir), tmp_path / "post.nc", pointwise_draws=25)
+    out = export.to_netcdf(read_run(run_dir), tmp_path / "post.nc", pointwise_draws=25)
     back = az.from_netcdf(out)
     assert back["log_likelihood"]["preferences"].shape[1] == 25
-    assert back["posterior"]["penalty"].shape[1] == load_run(run_dir).n_draws
+    assert back["posterior"]["penalty"].shape[1] == read_run(run_dir).n_draws
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert np.isfinite(float(_stat(az.loo(back), "elpd_loo", "elpd")))
@@ -410,13 +410,13 @@ def test_arviz_1_layout_is_a_datatree(run_dir, monkeypatch, tmp_path):
     if not hasattr(xr, "DataTree"):
         pytest.skip("xarray without DataTree (arviz >= 1 needs it)")
     monkeypatch.setattr(export, "arviz_major", lambda az: 1)
-    tree = export.to_arviz(load_run(run_dir), pointwise_draws=10)
+    tree = export.to_arviz(read_run(run_dir), pointwise_draws=10)
     assert isinstance(tree, xr.DataTree)
     assert {"posterior", "log_likelihood", "sample_stats", "constant_data"} <= set(tree.children)
     assert tree.attrs["inference_library"] == "pbicrl"
     assert tree["log_likelihood"]["preferences"].dims == ("chain", "draw", "trajectory")
     pytest.importorskip("h5netcdf")
-    path = export.to_netcdf(load_run(run_dir), tmp_path / "tree.nc", pointwise_draws=10)
+    path = export.to_netcdf(read_run(run_dir), tmp_path / "tree.nc", pointwise_draws=10)
     back = xr.open_datatree(path, engine="h5netcdf")
     assert back["log_likelihood"]["preferences"].shape[1] == 10
 

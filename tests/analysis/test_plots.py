@@ -95,7 +95,7 @@ def test_pairs_plot_for_parametric_constraints():
 def test_parametric_run_end_to_end(tmp_path):
     """A run with a parametric constraint: diagnostics, export and plots all carry its parameter."""
     from pbicrl.analysis import diagnostics
-    from pbicrl.runs import load_run
+    from pbicrl.io.runs import read_run
     from pbicrl.inference.synthetic import make_wall_problem
 
     prob = make_wall_problem(10, seed=0)
@@ -104,7 +104,7 @@ def test_parametric_run_end_to_end(tmp_path):
                         constraints=[{"family": "axis_halfspace", "dims": [0], "name": "wall"}],
                         weight_prior=pbicrl.WeightPrior("flat", -50, 50))
     post.extra["data"]["path"] = str(data)
-    run = load_run(post.save(tmp_path / "run"))
+    run = read_run(post.save(tmp_path / "run"))
     assert run.parameter_names == ("wall.threshold",) and run.parameter_owner == (2,)
     assert "wall.threshold" in diagnostics.compute(run).values["parameter"]
     files = plots.plot_run(run, truth={"wall.threshold": 8.0})

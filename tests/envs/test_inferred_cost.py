@@ -14,7 +14,7 @@ from pbicrl.inference.constraints import AxisHalfspace, Ball, Box, Halfspace  # 
 from pbicrl.envs.inferred_cost import InferredConstraintCost, _inside_many  # noqa: E402
 from pbicrl.envs.point_mass import PointMassEnv  # noqa: E402
 from pbicrl.envs.regions import FEATURE_NAMES as NAV  # noqa: E402
-from pbicrl.runs import load_run  # noqa: E402
+from pbicrl.io.runs import read_run  # noqa: E402
 
 
 def write_run(path: Path, names, ind, wp, params=None, pnames=(), constraints=None) -> Path:
@@ -144,7 +144,7 @@ def test_sample_mode_draw_is_seeded_per_episode(nav_run):
 def test_axis_halfspace_each_mode(wall_run):
     env = StateEnv(1)
     x = np.array([[7.0], [9.0], [10.5], [11.0], [20.0]])
-    ind = InferredConstraintCost(env, load_run(wall_run), state=lambda o, i: o, mode="indicator")
+    ind = InferredConstraintCost(env, read_run(wall_run), state=lambda o, i: o, mode="indicator")
     assert ind.location["wall"] == pytest.approx([11.0])
     np.testing.assert_array_equal(ind.costs(states=x), [0, 0, 0, 1, 1])
     prob = InferredConstraintCost(env, wall_run, state=lambda o, i: o, mode="probability")

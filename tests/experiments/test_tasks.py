@@ -20,7 +20,7 @@ from pbicrl.experiments.tasks import (CACHE_VERSION, RESULT_FILE, Task, TaskErro
                                       find_done, in_task_worker, infer_config_of_reproduce_run, prepare_infer,
                                       read_result, run_infer, summarize_infer, task_jobs, task_worker, write_shipped)
 from pbicrl.inference.priors import WeightPrior
-from pbicrl.inference.results import Posterior
+from pbicrl.inference.posterior import Posterior
 from pbicrl.inference.synthetic import make_problem
 
 ITER = 600

@@ -110,12 +110,12 @@ def test_p_constraint_figures_name_the_frequency(tmp_path):
 
 def test_labelling_page_result_names_the_meaning(tmp_path):
     from pbicrl.inference.data import Dataset
-    from pbicrl.runs import load_run
+    from pbicrl.io.runs import read_run
     from pbicrl.ui.inference import summarise
 
     def saved(post, name):
         post.save(tmp_path / name)
-        return load_run(tmp_path / name)
+        return read_run(tmp_path / name)
 
     rng = np.random.default_rng(0)
     ds = Dataset.from_trajectories([rng.normal(size=(5, 3)) for _ in range(6)], group=[1, 1, 2, 2, 3, 3],

@@ -18,9 +18,12 @@ import pytest
 
 from pbicrl.analysis import diagnostics
 from pbicrl.errors import PbicrlWarning
-from pbicrl.inference.results import (MAP_DEFINITION, SCHEMA_VERSION, Posterior, _non_varying, _prior_quantile, json_safe,
-                            split_rhat, write_run_dir)
-from pbicrl.runs import RunError, load_run
+from pbicrl.inference.draws import split_rhat
+from pbicrl.inference.posterior import Posterior, _non_varying
+from pbicrl.inference.priors import prior_quantile as _prior_quantile
+from pbicrl.inference.summary import MAP_DEFINITION, SCHEMA_VERSION, json_safe
+from pbicrl.io.runs import write_run_dir
+from pbicrl.io.runs import RunError, read_run
 
 FLAT = {"kind": "flat", "low": -100.0, "high": 100.0}
 
@@ -453,7 +456,7 @@ def _as_version_1(run: Path) -> None:
 def test_version_1_run_directories_still_load(tmp_path, hand):
     run = hand.save(tmp_path / "run")
     _as_version_1(run)
-    rec = load_run(run)
+    rec = read_run(run)
     assert rec.schema_version == 1 and rec.identified is None and rec.not_identifiable() == {}
     assert rec.selected() == ["a"]
     assert rec.most_frequent_set() == {"features": ["a"], "frequency": pytest.approx(0.4)}
@@ -489,7 +492,7 @@ def test_version_2_round_trip_keeps_identification(tmp_path):
     ident = {"separable": True, "alpha": 0.05, "parameters": {},
              "features": {"c": {"min_penalty": None, "unbounded": False, "identifiable": False, "reason": "constant"}}}
     post = quiet(make_post, IND, WP, identified=ident)
-    rec = load_run(post.save(tmp_path / "run"))
+    rec = read_run(post.save(tmp_path / "run"))
     assert rec.schema_version == 2
     assert rec.identified == json_safe(post.identified)
     assert rec.not_identifiable() == {"c": "constant"}
@@ -503,7 +506,7 @@ def test_unreadable_schema_versions_are_named(tmp_path, hand, version, match):
     s["schema_version"] = version
     (run / "summary.json").write_text(json.dumps(s))
     with pytest.raises(RunError, match=match):
-        load_run(run)
+        read_run(run)
 
 
 def test_diagnose_command_reads_version_1(tmp_path, hand, capsys):

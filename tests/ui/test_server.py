@@ -17,7 +17,7 @@ pytest.importorskip("httpx", reason="Starlette's test client needs httpx")
 import pbicrl  # noqa: E402
 from pbicrl.cli import main  # noqa: E402
 from pbicrl.inference.data import Dataset, DatasetError, load_dataset  # noqa: E402
-from pbicrl.runs import load_run  # noqa: E402
+from pbicrl.io.runs import read_run  # noqa: E402
 from pbicrl.ui.server import create_app  # noqa: E402
 from pbicrl.ui.session import LabelSession  # noqa: E402
 
@@ -234,7 +234,7 @@ def test_run_inference_from_the_page(pool, tmp_path, figures):
         assert len(res["suggestions"]["suggestions"]) == 3
         picks = [s["index"] for s in res["suggestions"]["suggestions"]]
         assert all(0 <= i < truth.size and session.group[i] == 0 for i in picks)
-        run = load_run(res["run_dir"])
+        run = read_run(res["run_dir"])
         assert run.data_path is not None and load_dataset(run.data_path).n_trajectories == 18
         if not figures:
             assert res["figures"] == []

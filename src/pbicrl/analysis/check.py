@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl.inference.data import Dataset
-from pbicrl.runs import constraint_set_of
+from pbicrl.inference.constraints import constraint_set_of
 
 __all__ = ["PredictiveCheck", "cross_validate", "kfold_split", "merge_folds", "pair_accuracy", "predictive_check",
            "RELIABILITY_BINS"]

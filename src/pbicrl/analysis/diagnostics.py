@@ -31,6 +31,8 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.inference.draws import split_rhat  # the statistic lives with the draws (re-exported)
+
 __all__ = ["Diagnostics", "compute", "split_rhat", "require_arviz", "arviz_available", "arviz_major", "RHAT_MAX",
            "ESS_MIN", "INSTALL_HINT"]
 
@@ -43,28 +45,6 @@ INSTALL_HINT = 'pip install "pbicrl[diag]"'
 _KINDS = ("penalty", "indicator", "parameter", "log_likelihood")
 _LABEL = {"penalty": "penalty c*w_p", "indicator": "indicator c", "parameter": "parameter",
           "log_likelihood": "log-likelihood"}
-
-
-def split_rhat(x: NDArray[np.float64]) -> float:
-    """Split-:math:`\\hat R` (Gelman et al., BDA3) of draws shaped (chains, draws).
-
-    NaN when undefined: fewer than 4 draws, one chain, or draws that never change (R-hat of a constant is
-    not 1, it is meaningless; :mod:`pbicrl.analysis.diagnostics` reports it as ``None``). Infinite when every chain is
-    constant but at different values.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] < 4 or x.shape[0] < 1:
-        return float("nan")
-    n = x.shape[1] // 2
-    halves = np.concatenate([x[:, :n], x[:, -n:]], axis=0)
-    m = halves.shape[0]
-    means = halves.mean(axis=1)
-    W = halves.var(axis=1, ddof=1).mean()
-    B = n * means.var(ddof=1)
-    if W == 0:
-        return float("nan") if B == 0 else float("inf")
-    var = (n - 1) / n * W + B / n
-    return float(np.sqrt(var / W)) if m > 1 else float("nan")
 
 
 def require_arviz() -> Any:
@@ -310,7 +290,7 @@ _CACHE: "weakref.WeakKeyDictionary[Any, tuple[tuple[Any, ...], Diagnostics]]" = 
 
 
 def compute(post: Any, *, backend: str = "auto", cache: bool = True) -> Diagnostics:
-    """Diagnostics of a :class:`~pbicrl.inference.results.Posterior` (or a run loaded with :func:`pbicrl.runs.load_run`).
+    """Diagnostics of a :class:`~pbicrl.inference.posterior.Posterior` (or a run loaded with :func:`pbicrl.io.runs.read_run`).
 
     Parameters
     ----------

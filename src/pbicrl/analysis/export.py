@@ -75,7 +75,7 @@ from numpy.typing import ArrayLike, NDArray
 from pbicrl._atomic import OutputExistsError, atomic_path
 from pbicrl.analysis.diagnostics import INSTALL_HINT, arviz_major, require_arviz
 from pbicrl.inference.codes import MOVES
-from pbicrl.runs import constraint_set_of
+from pbicrl.inference.constraints import constraint_set_of
 
 if TYPE_CHECKING:
     from pbicrl.inference.constraints import ConstraintSet
@@ -518,7 +518,7 @@ def _find_dataset(post: Any, dataset: Any) -> "Dataset | None":
     file the run recorded (``extra.data.path``, or the copy ``extra.data.file`` in the run directory); None when
     none of these exists. A dataset whose content hash differs from the recorded ``extra.data.sha256`` is an error."""
     from pbicrl.inference.data import Dataset, load_dataset
-    from pbicrl.runs import recorded_dataset
+    from pbicrl.io.runs import recorded_dataset
 
     where = "dataset"
     if dataset is None:
@@ -544,7 +544,7 @@ def _find_dataset(post: Any, dataset: Any) -> "Dataset | None":
 
 def _no_dataset_message(post: Any) -> str:
     """Why the pointwise log-likelihood cannot be built, and what to do."""
-    from pbicrl.runs import recorded_dataset
+    from pbicrl.io.runs import recorded_dataset
 
     data = dict(getattr(post, "extra", {}) or {}).get("data") or {}
     dp = recorded_dataset(post)
@@ -686,7 +686,7 @@ def to_arviz(post: Any, *, dataset: "Dataset | str | os.PathLike[str] | None" = 
     dataset : Dataset or path, optional
         For the pointwise log-likelihood; default: the dataset :func:`pbicrl.infer` kept with the posterior, else
         the file the run recorded (``extra.data.path``, or the copy ``extra.data.file`` that
-        :meth:`~pbicrl.inference.results.Posterior.save` stores for an in-memory dataset). Checked against the
+        :meth:`~pbicrl.inference.posterior.Posterior.save` stores for an in-memory dataset). Checked against the
         recorded content hash (``extra.data.sha256``) when there is one.
     likelihood : PreferenceLikelihood, optional
         The likelihood the run sampled; default: rebuilt from the run's settings and ``dataset`` and
@@ -737,7 +737,7 @@ def to_netcdf(post: Any, path: str | os.PathLike[str], *, overwrite: bool = Fals
 
     Raises
     ------
-    pbicrl.inference.results.OutputExistsError
+    pbicrl.io.runs.OutputExistsError
         If ``path`` exists and ``overwrite`` is false (a :class:`FileExistsError`).
     ImportError
         If ArviZ or a NetCDF engine (h5netcdf) is missing; the message names the pip command.

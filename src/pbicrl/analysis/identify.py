@@ -62,6 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 from pbicrl.inference.constraints import AxisHalfspace, Constraint, ConstraintSet, constraint_from_dict
 from pbicrl.inference.data import Dataset
 from pbicrl.errors import warn
+from pbicrl.inference.posterior_warnings import short_warnings
 from pbicrl.inference.preferences import Margins, Preferences
 
 __all__ = ["identify", "Identification", "FeatureIdentification", "ParameterInterval", "IdentifyError",
@@ -417,36 +418,6 @@ WARNING_EXPLANATION = (
     "the prior: drop it from the candidates (or keep one of a dependent set).")
 """The long explanation behind the one-line identification warnings, given once (``summary.json``:
 ``identified.explanation``; the README's *What the rankings identify*)."""
-
-
-def short_warnings(ident: Mapping[str, Any]) -> list[str] | None:
-    """One short line per feature from an identification's dict (:meth:`Identification.to_dict`, also as read back
-    from an older ``summary.json``): ``in_red: |w_p| >= 455.9 identified; magnitude beyond that is the prior's``.
-
-    None when the dict has no per-feature entries (then a caller keeps the messages it has).
-    """
-    feats = ident.get("features")
-    if not isinstance(feats, Mapping):
-        return None
-    alpha = ident.get("alpha")
-    at = f" at alpha = {float(alpha):g}" if isinstance(alpha, (int, float)) and not isinstance(alpha, bool) else ""
-    out, unbounded = [], []
-    for name, e in feats.items():
-        if not isinstance(e, Mapping):
-            continue
-        if e.get("candidate", True) and e.get("identifiable") is False:
-            out.append(f"{name}: not identifiable ({e.get('reason') or 'no information in the rankings'}); its "
-                       "posterior is the prior's")
-        elif e.get("unbounded"):
-            mp = e.get("min_penalty")
-            if not isinstance(mp, (int, float)) or isinstance(mp, bool) or not math.isfinite(mp):
-                unbounded.append(f"{name}: unbounded by the data (rankings not separable{at}); its magnitude is "
-                                 "the prior's")
-            elif float(mp) == 0.0:
-                unbounded.append(f"{name}: not required by the rankings (min|w_p| = 0); its magnitude is the prior's")
-            else:
-                unbounded.append(f"{name}: |w_p| >= {float(mp):.4g} identified; magnitude beyond that is the prior's")
-    return out + unbounded
 
 
 def _direction_text(d: Mapping[str, float]) -> str:

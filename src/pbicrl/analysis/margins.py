@@ -24,8 +24,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from pbicrl.inference.data import Dataset
 from pbicrl.inference.preferences import Margins
-from pbicrl.inference.results import Posterior
-from pbicrl.runs import constraint_set_of
+from pbicrl.inference.posterior import Posterior
+from pbicrl.inference.constraints import constraint_set_of
 
 __all__ = ["group_mean_returns", "point_weights", "relation_error", "tune_margins", "MarginTuning", "DEFAULT_GAP_GRID"]
 

@@ -2,7 +2,7 @@
 
 Matplotlib (``pip install "pbicrl[plot]"``) is imported lazily and used without ``pyplot`` (figures render
 with the Agg canvas), so plotting never changes the caller's backend. Every function takes a
-:class:`~pbicrl.inference.results.Posterior` or a run loaded with :func:`pbicrl.runs.load_run` and returns a
+:class:`~pbicrl.inference.posterior.Posterior` or a run loaded with :func:`pbicrl.io.runs.read_run` and returns a
 ``matplotlib.figure.Figure``; :func:`plot_run` writes them all for a run directory (200 dpi by default).
 
 Conventions shared by the figures:
@@ -725,7 +725,7 @@ def _returns(post: Any, dataset: Any, effective: NDArray[np.float64],
     wn = _weights_known(post, dataset)
     feats = [dataset.mean_features]
     if len(names) > d_known:
-        from pbicrl.runs import constraint_set_of
+        from pbicrl.inference.constraints import constraint_set_of
 
         cs = constraint_set_of(post, dataset)
         if cs is None:
@@ -1052,7 +1052,7 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
         A figure file exists and ``overwrite`` is false.
     """
     from pbicrl.inference.data import Dataset, load_dataset
-    from pbicrl.runs import load_run
+    from pbicrl.io.runs import read_run
 
     if fmt not in FORMATS:
         raise ValueError(f"fmt: expected one of {', '.join(FORMATS)}, got {fmt!r}")
@@ -1061,7 +1061,7 @@ def plot_run(run: Any, out_dir: str | os.PathLike[str] | None = None, *, dataset
         raise ValueError(f"dpi: expected a positive number, got {dpi}")
     _mpl()
     if isinstance(run, (str, os.PathLike)):
-        run = load_run(run)
+        run = read_run(run)
     truth = check_truth(truth, run.feature_names, tuple(getattr(run, "parameter_names", None) or ()))
     default_out = out_dir is None
     if out_dir is None:

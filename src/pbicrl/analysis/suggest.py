@@ -463,7 +463,7 @@ def suggest(
     Parameters
     ----------
     posterior : Posterior or RunRecord
-        Draws of a run on ``labelled`` (``pbicrl.infer`` or :func:`pbicrl.runs.load_run`).
+        Draws of a run on ``labelled`` (``pbicrl.infer`` or :func:`pbicrl.io.runs.read_run`).
     labelled : Dataset
         The grouped data the posterior was inferred from (unlabelled trajectories in it are ignored).
     pool : Dataset
@@ -577,9 +577,9 @@ def suggest_run(
         Passed to :func:`suggest`.
     """
     from pbicrl.inference.data import load_dataset
-    from pbicrl.runs import load_run
+    from pbicrl.io.runs import read_run
 
-    run = load_run(run_dir)
+    run = read_run(run_dir)
     conv = (run.summary.get("extra") or {}).get("convergence") if isinstance(run.summary, dict) else None
     if isinstance(conv, dict) and conv.get("converged") is False and not allow_unconverged:
         failing = conv.get("failing") or {}

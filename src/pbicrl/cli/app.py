@@ -153,7 +153,7 @@ def _cmd_infer(args: argparse.Namespace) -> int:
     from pbicrl.api import infer_from_config
     from pbicrl.inference.data import load_dataset
 
-    from pbicrl.inference.results import check_out_dir
+    from pbicrl.io.runs import check_out_dir
 
     cfg = _config_from_args(args)
     data = resolve_dataset_path(args.data)
@@ -313,11 +313,11 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from pbicrl.config import InferConfig, load_config
     from pbicrl.inference.data import load_dataset
     from pbicrl.analysis.margins import DEFAULT_GAP_GRID, tune_margins
-    from pbicrl.inference.results import write_run_dir
+    from pbicrl.io.runs import write_run_dir
 
     cfg = load_config(args.config) if args.config else InferConfig(iterations=50_000, chains=1)
     cfg = cfg.updated(iterations=args.iterations, chains=args.chains, sampler=args.sampler, seed=args.seed)
-    from pbicrl.inference.results import check_out_dir
+    from pbicrl.io.runs import check_out_dir
 
     if args.grid is not None and len(args.grid) == 0:
         raise ValueError("--grid: no values; give the gaps to try, e.g. --grid 0,0.5,1,2 (or leave it out for the "
@@ -368,9 +368,9 @@ def _add_check(sub: Any) -> None:
 def _cmd_check(args: argparse.Namespace) -> int:
     from pbicrl.analysis.check import predictive_check
     from pbicrl.inference.data import load_dataset
-    from pbicrl.runs import load_run
+    from pbicrl.io.runs import read_run
 
-    run = load_run(args.run)
+    run = read_run(args.run)
     res = predictive_check(run, load_dataset(resolve_dataset_path(args.data)), n_draws=args.draws, seed=args.seed,
                            calibration_draws=args.calibration_draws)
     print(json.dumps(res.to_dict(), indent=2) if args.json else res.table())
@@ -495,7 +495,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if os.environ.get("PBICRL_DEBUG"):
             raise
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        from pbicrl.inference.results import OutputExistsError
+        from pbicrl.io.runs import OutputExistsError
 
         if isinstance(exc, OutputExistsError):  # the library says overwrite=True; the command line has a flag
             msg = f"{exc.field}: {exc.path} already exists; choose another {exc.kind} or pass --overwrite"
@@ -510,7 +510,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("pbicrl: interrupted; no output written", file=sys.stderr)
         return 130
     finally:
-        from pbicrl.inference.results import release_out_dir
+        from pbicrl.io.runs import release_out_dir
 
         release_out_dir()  # output directories the command claimed and did not write (it failed)
 

@@ -27,7 +27,7 @@ from pbicrl.cli.argtypes import positive_int as _positive_int
 
 __all__ = ["add_subcommands", "check_run_dir", "load_run_checked"]
 
-from pbicrl.runs import check_run_dir  # noqa: E402  (re-exported: the checks live with the reader)
+from pbicrl.io.runs import check_run_dir  # noqa: E402  (re-exported: the checks live with the reader)
 
 # ---------------------------------------------------------------------------------------------- inputs
 def _same_file(a: Path, b: Path) -> bool:
@@ -48,13 +48,13 @@ def _refuse_inputs(out: Path, inputs: Sequence[Path | None], flag: str) -> None:
 
 
 def load_run_checked(run_dir: str | os.PathLike[str]) -> Any:
-    """:func:`pbicrl.runs.load_run` (which checks the files first; any malformation is a ``RunError``).
+    """:func:`pbicrl.io.runs.read_run` (which checks the files first; any malformation is a ``RunError``).
 
-    The commands read runs as :class:`~pbicrl.runs.RunRecord` (no warnings issued on reading; ``pbicrl.load_run``
-    gives a full :class:`~pbicrl.inference.results.Posterior`)."""
-    from pbicrl.runs import load_run
+    The commands read runs as :class:`~pbicrl.io.runs.RunRecord` (no warnings issued on reading; ``pbicrl.load_run``
+    gives a full :class:`~pbicrl.inference.posterior.Posterior`)."""
+    from pbicrl.io.runs import read_run
 
-    return load_run(run_dir)
+    return read_run(run_dir)
 
 
 @contextlib.contextmanager

@@ -2,7 +2,7 @@ r"""A per-step cost from an inferred constraint: act on a posterior (Safety-Gymn
 
 :class:`InferredConstraintCost` wraps a Gymnasium environment and adds, at every step, a cost
 :math:`c_t \ge 0` for the state the step reached, computed from a posterior over constraints
-(:class:`pbicrl.inference.results.Posterior` or a run directory read by :func:`pbicrl.runs.load_run`). The
+(:class:`pbicrl.inference.posterior.Posterior` or a run directory read by :func:`pbicrl.io.runs.read_run`). The
 reward :math:`r(s) = (w_n + c \circ w_p)^\top \phi(s)` has known features :math:`\phi_j` (columns of the
 dataset) and, optionally, parametric constraints :math:`\phi_{\vartheta_m}(s) = 1[s \in R(\vartheta_m)]`
 (:mod:`pbicrl.inference.constraints`). Per step the wrapper needs the known features, ``features(obs, info) -> (d,)``,
@@ -205,8 +205,8 @@ class InferredConstraintCost(gym.Wrapper):
     env : gymnasium.Env
         The environment (its reward is left as it is unless ``fold_into_reward``).
     posterior : Posterior, RunRecord or path
-        Draws of :math:`c, w_p` (and :math:`\vartheta`): a :class:`pbicrl.inference.results.Posterior`, a
-        :class:`pbicrl.runs.RunRecord` or a run directory (read with :func:`pbicrl.runs.load_run`).
+        Draws of :math:`c, w_p` (and :math:`\vartheta`): a :class:`pbicrl.inference.posterior.Posterior`, a
+        :class:`pbicrl.io.runs.RunRecord` or a run directory (read with :func:`pbicrl.io.runs.read_run`).
         Parametric constraints are rebuilt from ``settings["constraints"]`` (written by ``pbicrl infer``).
     features : callable, optional
         ``features(obs, info) -> (d,)``, the :math:`d` known features of the reached state, in the
@@ -268,9 +268,9 @@ class InferredConstraintCost(gym.Wrapper):
         if not (math.isfinite(kappa) and kappa >= 0):
             raise ValueError(f"fold_into_reward: must be a bool or a finite coefficient >= 0, got {fold_into_reward!r}")
         if isinstance(posterior, (str, os.PathLike)):
-            from pbicrl.runs import load_run
+            from pbicrl.io.runs import read_run
 
-            posterior = load_run(posterior)
+            posterior = read_run(posterior)
         self.mode, self.quantile, self.fold_coefficient = mode, q, kappa
         self.posterior = posterior
         self._setup_posterior(posterior, constraints)
@@ -288,9 +288,9 @@ class InferredConstraintCost(gym.Wrapper):
         constructor (``mode``, ``constraints``, ``quantile``, ``fold_into_reward``, ``seed``, ``features``,
         ``state``).
         """
-        from pbicrl.runs import load_run
+        from pbicrl.io.runs import read_run
 
-        return cls(env, load_run(run_dir), **kwargs)
+        return cls(env, read_run(run_dir), **kwargs)
 
     def _setup_posterior(self, post: Any, names: Sequence[str] | None) -> None:
         for attr in ("indicators", "penalty_weights", "feature_names"):

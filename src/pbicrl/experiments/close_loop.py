@@ -189,9 +189,9 @@ def run(cfg: CloseLoopConfig, out: Path, docs: Path | None = None) -> dict[str, 
         t0 = time.time()
         run_dir = _infer(plan, cfg, out)
         timing[f"{plan.env}/infer"] = time.time() - t0
-        from pbicrl.runs import load_run
+        from pbicrl.io.runs import read_run
 
-        rec = load_run(run_dir)
+        rec = read_run(run_dir)
         post = {"data": run_dir.name, "selected": rec.selected(), "p_constraint": dict(zip(rec.feature_names, rec.p_constraint.tolist())),
                 "parameters": {n: {"median": float(m), "ci90": [float(lo), float(hi)]} for n, m, lo, hi in
                                zip(rec.parameter_names, *(rec.parameter_conditional()[k] for k in ("median", "low", "high")))}}

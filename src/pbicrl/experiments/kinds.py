@@ -177,7 +177,7 @@ def run_infer(config: dict, out_dir: Path) -> dict[str, Any]:
 
 def summarize_infer(config: dict, out_dir: Path) -> dict[str, Any]:
     """:func:`infer_result` of a finished ``infer`` run read back from its directory (adopting older runs)."""
-    from pbicrl.inference.results import Posterior
+    from pbicrl.inference.posterior import Posterior
 
     ds, _, _ = _infer_dataset(config)
     return infer_result(Posterior.load(out_dir, issue_warnings=False), ds)

@@ -37,7 +37,7 @@ from pbicrl.inference.codes import FAMILY_CODES
 from pbicrl.inference.data import Dataset
 
 __all__ = ["Constraint", "AxisHalfspace", "Halfspace", "Box", "Ball", "ConstraintError", "ConstraintSet",
-           "constraint_from_dict", "FAMILIES"]
+           "constraint_from_dict", "constraint_set_of", "FAMILIES"]
 
 FAMILIES = tuple(FAMILY_CODES)  # the codes themselves live in pbicrl.inference.codes
 
@@ -369,3 +369,17 @@ class ConstraintSet:
     def to_dict(self) -> list[dict[str, Any]]:
         return [c.to_dict() | {"resolved_bounds": self.bounds[self.param_offsets[m]:self.param_offsets[m + 1]].tolist()}
                 for m, c in enumerate(self.constraints)]
+
+
+def constraint_set_of(run: Any, dataset: Any) -> "ConstraintSet | None":
+    """The :class:`ConstraintSet` a run sampled with, rebuilt over ``dataset``, or None.
+
+    ``run`` is a :class:`~pbicrl.inference.posterior.Posterior` or :class:`~pbicrl.io.runs.RunRecord`; its
+    ``settings["constraints"]`` hold each constraint's ``to_dict()`` plus ``resolved_bounds``, which record the prior only (the features depend
+    on the family, dimensions and direction), so they are left out.
+    """
+    specs = (dict(getattr(run, "settings", {}) or {})).get("constraints")
+    if not specs:
+        return None
+    return ConstraintSet(tuple(constraint_from_dict({k: v for k, v in spec.items() if k != "resolved_bounds"})
+                               for spec in specs), dataset)

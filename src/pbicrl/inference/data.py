@@ -44,7 +44,6 @@ import dataclasses
 import math
 import os
 import stat
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -55,7 +54,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 # one implementation of temporary names, their clean-up and the umask, shared with every atomic writer
-from pbicrl._atomic import clean_stale_temporaries, temporary_prefix, umask
+from pbicrl._atomic import OutputExistsError, atomic_path, clean_stale_temporaries, temporary_prefix
 
 __all__ = [
     "Dataset", "DatasetError", "DatasetNotFoundError", "load_dataset", "resolve_dataset_path",
@@ -953,8 +952,8 @@ class Dataset:
 
         Raises
         ------
-        FileExistsError
-            ``path`` exists and ``overwrite`` is false.
+        OutputExistsError
+            ``path`` exists and ``overwrite`` is false (a :class:`FileExistsError`).
         DatasetError
             ``path`` is a directory.
         """
@@ -964,21 +963,12 @@ class Dataset:
         if path.is_dir():
             raise DatasetError(f"path: {path} is a directory; give a file name such as {path / 'demos.npz'}")
         if path.exists() and not overwrite:
-            raise FileExistsError(f"path: {path} already exists; choose another name or pass overwrite=True")
+            raise OutputExistsError("path", path, "file")
         arrays = self.to_arrays()
         path.parent.mkdir(parents=True, exist_ok=True)
         clean_stale_temporaries(path)
-        fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                (np.savez_compressed if compress else np.savez)(fh, **arrays)
-            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
-            if overwrite:
-                os.replace(tmp, path)
-            else:
-                _rename_no_clobber(tmp, path)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
+        with atomic_path(path, overwrite=overwrite, field="path") as tmp:
+            (np.savez_compressed if compress else np.savez)(tmp, **arrays)
         return path
 
     def to_arrays(self) -> dict[str, NDArray]:
@@ -1088,21 +1078,6 @@ class Dataset:
             more += f", env_id={self.env_id!r}"
         return (f"Dataset(N={self.n_trajectories}, d={self.n_features}, states={self.lengths.sum()}, "
                 f"groups={{{counts}}}, features={list(self.feature_names)}{more})")
-
-
-def _rename_no_clobber(src: str | os.PathLike[str], dst: Path) -> None:
-    """Move ``src`` to ``dst`` unless ``dst`` exists (atomically where hard links work)."""
-    try:
-        os.link(src, dst)  # fails if dst exists, even if it appeared a moment ago
-    except FileExistsError:
-        raise FileExistsError(f"path: {dst} already exists; choose another name or pass overwrite=True") from None
-    except OSError:  # no hard links on this file system: check, then rename
-        if dst.exists():
-            raise FileExistsError(f"path: {dst} already exists; choose another name or pass overwrite=True") from None
-        os.replace(src, dst)
-
-
-_umask = umask  # the name io/csv.py imports
 
 
 def load_dataset(name_or_path: str | os.PathLike[str], *, allow_unlabelled: bool = False) -> Dataset:

@@ -1,7 +1,7 @@
 r"""Draws of a reversible-jump chain and the views every holder of them shares.
 
-:class:`DrawsView` is the mixin of :class:`pbicrl.inference.results.Posterior` (a fresh or loaded posterior) and
-:class:`pbicrl.runs.RunRecord` (the checked reader of a run directory): the probability of each constraint
+:class:`DrawsView` is the mixin of :class:`pbicrl.inference.posterior.Posterior` (a fresh or loaded posterior) and
+:class:`pbicrl.io.runs.RunRecord` (the checked reader of a run directory): the probability of each constraint
 :math:`P(c_j = 1 \mid \mathcal{D})`, the selected (median-probability) set, the most frequent set, summaries of
 :math:`w_{p,j}` and :math:`\vartheta` given the constraint is on, and point estimates. It needs only the
 arrays, so diagnostics, export and plots accept either holder.
@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["DrawsView", "SELECTION_THRESHOLD", "ESTIMATORS", "LEVEL", "INDICATOR_MEANINGS", "indicator_meaning",
-           "INDICATOR_LABELS"]
+           "INDICATOR_LABELS", "split_rhat"]
 
 SELECTION_THRESHOLD = 0.5
 """:math:`P(c_j = 1) >` this selects feature :math:`j` (median-probability model, Barbieri & Berger 2004)."""
@@ -43,8 +43,30 @@ def indicator_meaning(method: str | None) -> str:
     return INDICATOR_MEANINGS.get(str(method or "pbicrl"), "chain_frequency")
 
 
+def split_rhat(x: NDArray[np.float64]) -> float:
+    """Split-:math:`\\hat R` (Gelman et al., BDA3) of draws shaped (chains, draws).
+
+    NaN when undefined: fewer than 4 draws, one chain, or draws that never change (R-hat of a constant is
+    not 1, it is meaningless; the diagnostics report it as ``None``). Infinite when every chain is
+    constant but at different values.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] < 4 or x.shape[0] < 1:
+        return float("nan")
+    n = x.shape[1] // 2
+    halves = np.concatenate([x[:, :n], x[:, -n:]], axis=0)
+    m = halves.shape[0]
+    means = halves.mean(axis=1)
+    W = halves.var(axis=1, ddof=1).mean()
+    B = n * means.var(ddof=1)
+    if W == 0:
+        return float("nan") if B == 0 else float("inf")
+    var = (n - 1) / n * W + B / n
+    return float(np.sqrt(var / W)) if m > 1 else float("nan")
+
+
 class DrawsView:
-    r"""Views shared by every holder of draws (:class:`pbicrl.inference.results.Posterior`, :class:`pbicrl.runs.RunRecord`).
+    r"""Views shared by every holder of draws (:class:`pbicrl.inference.posterior.Posterior`, :class:`pbicrl.io.runs.RunRecord`).
 
     Needs ``indicators`` and ``penalty_weights`` (chains, draws, d), ``feature_names`` and
     ``map_indicators``, ``map_penalty_weights`` (d,); uses ``parameters`` (chains, draws, P),
@@ -76,7 +98,7 @@ class DrawsView:
 
     @property
     def map_effective_penalty(self) -> NDArray[np.float64]:
-        """:math:`c \\circ w_p` of the highest-density visited draw (see :data:`pbicrl.inference.results.MAP_DEFINITION`)."""
+        """:math:`c \\circ w_p` of the highest-density visited draw (see :data:`pbicrl.inference.summary.MAP_DEFINITION`)."""
         return self.map_indicators * self.map_penalty_weights
 
     @property

@@ -50,13 +50,14 @@ Truncation
 
 Note also: when the groups are perfectly separated by a feature, the Bradley-Terry likelihood keeps rising as
 that penalty grows, so only a lower bound on its magnitude is learned and the prior sets the scale.
-:mod:`pbicrl.inference.results` warns when a flat posterior piles up at the bound.
+:mod:`pbicrl.inference.posterior` warns when a flat posterior piles up at the bound.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -66,7 +67,7 @@ from numpy.typing import ArrayLike, NDArray
 from pbicrl.inference.codes import PRIOR_KINDS
 
 __all__ = ["WeightPrior", "ResolvedWeightPrior", "IndicatorPrior", "PriorError", "feature_sd", "truncated_normal_ppf",
-           "PARAMETRIC_FEATURE_SD", "FLAT_DEFAULT_BOUND"]
+           "prior_quantile", "PARAMETRIC_FEATURE_SD", "FLAT_DEFAULT_BOUND"]
 
 #: Standard deviation assumed for parametric constraint features (fraction of time in a region).
 PARAMETRIC_FEATURE_SD = 0.5
@@ -309,6 +310,53 @@ def truncated_normal_ppf(u: ArrayLike, loc: ArrayLike, scale: ArrayLike, low: Ar
         z = _trunc_ppf("normal", 0.0, (low[idx] - loc[idx]) / scale[idx], (high[idx] - loc[idx]) / scale[idx], float(u[idx]))
         out[idx] = min(max(loc[idx] + scale[idx] * z, low[idx]), high[idx])
     return out
+
+
+def prior_quantile(spec: Mapping[str, Any] | None, p: float) -> float | None:
+    """Quantile ``p`` of a one-dimensional prior described by a dict, or ``None`` if it has none we know.
+
+    Kinds: ``flat`` / ``uniform``; ``normal``; ``student_t`` / ``t`` (``df`` or ``nu``) and ``cauchy``, with
+    ``mean`` (or ``loc``) and ``scale``, truncated to ``support`` ``[a, b]`` (``None`` = infinite; else
+    ``low`` / ``high``). Explicit ``q05`` / ``q95`` entries win (5% / 95% only). The same inverse CDF the
+    samplers draw their starting points with (:func:`truncated_normal_ppf`), so there is one of it.
+    """
+    if not isinstance(spec, Mapping):
+        return None
+    explicit = {0.05: spec.get("q05"), 0.95: spec.get("q95")}.get(round(p, 12))
+    if _real(explicit) and math.isfinite(explicit):
+        return float(explicit)
+    kind = str(spec.get("kind", "")).lower()
+    sup = spec.get("support")
+    if isinstance(sup, (list, tuple)) and len(sup) == 2:
+        lo = float(sup[0]) if _real(sup[0]) else -math.inf
+        hi = float(sup[1]) if _real(sup[1]) else math.inf
+    else:
+        lo = float(spec["low"]) if _real(spec.get("low")) else -math.inf
+        hi = float(spec["high"]) if _real(spec.get("high")) else math.inf
+    if not hi > lo or not 0.0 < p < 1.0:
+        return None
+    if kind in ("flat", "uniform"):
+        return lo + p * (hi - lo) if math.isfinite(lo) and math.isfinite(hi) else None
+    loc = spec.get("loc", spec.get("mean", 0.0))
+    scale = spec.get("scale")
+    if not (_real(scale) and scale > 0 and _real(loc)):
+        return None
+    a, b = (lo - loc) / scale, (hi - loc) / scale  # standardised support
+    if kind == "normal":
+        fam, nu = "normal", 0.0
+    elif kind in ("student_t", "studentt", "student-t", "t", "cauchy"):
+        df = 1.0 if kind == "cauchy" else spec.get("df", spec.get("nu"))
+        if not (_real(df) and 1.0 <= df <= _MAX_DF):
+            return None
+        fam, nu = "t", float(df)
+    else:
+        return None
+    z = _trunc_ppf(fam, nu, a, b, float(p))
+    return float(loc + scale * z) if math.isfinite(z) else None
+
+
+def _real(x: Any) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
 # ------------------------------------------------------------------------------------------ priors

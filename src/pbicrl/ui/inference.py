@@ -125,7 +125,7 @@ def summarise(run: Any, labelled: Any) -> dict[str, Any]:
 
     Rewards are the length-normalised returns :math:`\\bar\\phi_i^\\top (w_n + \\hat e)` of the labelled
     trajectories under the selected-set estimate :math:`\\hat e` (selected features at their conditional
-    posterior medians, :meth:`~pbicrl.inference.results.DrawsView.point_estimate`).
+    posterior medians, :meth:`~pbicrl.inference.draws.DrawsView.point_estimate`).
     """
     from pbicrl.inference.draws import INDICATOR_LABELS
 
@@ -185,7 +185,7 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
         from pbicrl import infer
         from pbicrl.inference.data import load_dataset
         from pbicrl.errors import PbicrlWarning
-        from pbicrl.runs import load_run
+        from pbicrl.io.runs import read_run
         from pbicrl.inference.samplers import driver
 
         warnings.simplefilter("ignore", PbicrlWarning)  # they are in summary.json; the page shows them
@@ -211,7 +211,7 @@ def _child(labelling_path: str, run_dir: str, settings: InferenceSettings, q: An
         from pbicrl._atomic import mark_output
 
         mark_output(rd, "run", ["data.npz"])
-        run = load_run(rd)
+        run = read_run(rd)
         result = summarise(run, labelled)
         result["run_dir"] = str(rd)
         figures: list[str] = []

@@ -39,7 +39,7 @@ from pbicrl.inference.codes import MOVE_FLIP, MOVE_NONE, MOVE_PARAMETER, MOVE_WE
 from pbicrl.inference.constraints import ConstraintSet
 from pbicrl.inference.convergence import TARGET_ESS, TARGET_RHAT, Convergence, check_convergence, reported_quantities
 from pbicrl.inference.likelihood import PreferenceLikelihood
-from pbicrl.inference.results import Posterior
+from pbicrl.inference.posterior import Posterior
 from pbicrl.inference.samplers.kernels import ADAPT_EVERY, ChainState, Kernel, SamplerSettings, build_kernel
 
 __all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES",
