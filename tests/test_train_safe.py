@@ -17,7 +17,7 @@ from pbicrl.baselines.ppo_lagrangian import PPOLagConfig, PPOLagrangian  # noqa:
 from pbicrl.cli import main  # noqa: E402
 from pbicrl.envs.point_mass import PointMassEnv  # noqa: E402
 from pbicrl.envs.regions import FEATURE_NAMES as NAV  # noqa: E402
-from pbicrl.safe_rl import evaluate_policy, load_policy, ppo_config, train_safe  # noqa: E402
+from pbicrl.experiments.safe_rl import evaluate_policy, load_policy, ppo_config, train_safe  # noqa: E402
 
 SMALL = {"n_envs": 2, "n_steps": 64, "n_epochs": 2, "minibatch_size": 64}
 

@@ -13,7 +13,7 @@ from pbicrl.errors import PbicrlWarning
 @pytest.mark.parametrize("module, name, new", [
     ("pbicrl.experiments.reproduce", "add_subcommands", "pbicrl.cli.reproduce"),
     ("pbicrl.experiments.sweep", "add_subcommands", "pbicrl.cli.sweep"),
-    ("pbicrl.safe_rl", "add_subcommands", "pbicrl.cli.train_safe"),
+    ("pbicrl.experiments.safe_rl", "add_subcommands", "pbicrl.cli.train_safe"),
     ("pbicrl.experiments.close_loop", "main", "pbicrl.cli.close_loop"),
 ])
 def test_a_moved_command_line_is_a_deprecated_alias(module, name, new):

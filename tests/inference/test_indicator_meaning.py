@@ -13,6 +13,7 @@ import warnings
 import numpy as np
 import pytest
 
+from pbicrl.analysis.report import records
 from pbicrl.inference.draws import INDICATOR_MEANINGS, indicator_meaning
 from tests.inference.test_results import IND, WP, make_post, quiet
 
@@ -61,7 +62,7 @@ def test_latent_samplers_show_a_chain_frequency_and_no_selection(method):
     rows = {line.split()[0]: line.split() for line in table.splitlines()[2:5]}
     assert rows["a"][2] == "on" and rows["b"][2] == "off"
     assert "selected=" not in repr(post)
-    df = post._records()
+    df = records(post)
     assert "p_constraint" not in df[0] and df[0]["frequency_on"] == pytest.approx(0.8)
     assert "P(c=1)" not in post._repr_html_().split("</thead>")[0]
 

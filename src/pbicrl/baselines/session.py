@@ -1,5 +1,5 @@
 """What every long training run does the same way, one session at a time: ICL (:mod:`pbicrl.baselines.icl`),
-``train-safe`` (:mod:`pbicrl.safe_rl`) and the SAC demonstrators (:mod:`pbicrl.demonstrators.sac`).
+``train-safe`` (:mod:`pbicrl.experiments.safe_rl`) and the SAC demonstrators (:mod:`pbicrl.demonstrators.sac`).
 
 * :class:`StopSignals` - SIGTERM and SIGINT note a stop request, so the run writes its checkpoint and stops;
 * :func:`progress_logger` - timestamped lines appended to the run's ``progress.log`` (and echoed to stderr);

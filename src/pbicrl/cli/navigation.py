@@ -202,7 +202,7 @@ def _cmd_grid(args: argparse.Namespace) -> int:
 
 
 def _cmd_minari_to_npz(args: argparse.Namespace) -> int:
-    from pbicrl.envs.minari_io import minari_to_dataset
+    from pbicrl.io.minari import from_minari
     from pbicrl.envs.regions import FEATURE_NAMES
 
     check_outputs([npz_path(args.out)], args.overwrite)
@@ -215,7 +215,8 @@ def _cmd_minari_to_npz(args: argparse.Namespace) -> int:
         from pbicrl.envs.fetch_reach import FETCH_REACH_TASK  # needs gymnasium only, not mujoco
 
         nominal = FETCH_REACH_TASK.nominal_weights
-    print(minari_to_dataset(args.id, args.root, feature_names=FEATURE_NAMES, nominal_weights=nominal).save(args.out))
+    print(from_minari(args.id, root=args.root, feature_names=FEATURE_NAMES, nominal_weights=nominal,
+                      actions=False).save(args.out))
     return 0
 
 

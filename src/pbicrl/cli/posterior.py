@@ -178,7 +178,7 @@ def _cmd_import_table(args: argparse.Namespace) -> int:
 
 
 def _cmd_import_minari(args: argparse.Namespace) -> int:
-    from pbicrl.envs.minari_io import load_minari, require_minari
+    from pbicrl.io.minari import load_minari, require_minari
     from pbicrl.io import from_minari, load_feature_function
 
     groups_file = Path(args.groups) if args.groups and args.groups.endswith(".json") else _spec_file(args.groups)

@@ -1,4 +1,4 @@
-"""``pbicrl train-safe``: the command line of :func:`pbicrl.safe_rl.train_safe` (imports nothing optional until it
+"""``pbicrl train-safe``: the command line of :func:`pbicrl.experiments.safe_rl.train_safe` (imports nothing optional until it
 runs)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pbicrl.safe_rl import COSTS, DEFAULT_COST_LIMIT, ENVS, train_safe
+from pbicrl.experiments.safe_rl import COSTS, DEFAULT_COST_LIMIT, ENVS, train_safe
 
 __all__ = ["add_subcommands"]
 
@@ -93,7 +93,7 @@ def add_subcommands(sub: Any) -> None:
     p.add_argument("--eval-episodes", type=nonneg_int, default=20,
                    help="episodes of the final policy to evaluate into summary.json (default 20)")
     p.add_argument("--lr", type=positive_float, default=None,
-                   help="PPO learning rate (default: the environment's, see pbicrl.safe_rl.ppo_config)")
+                   help="PPO learning rate (default: the environment's, see pbicrl.experiments.safe_rl.ppo_config)")
     p.add_argument("--lagrange-lr", type=positive_float, default=None,
                    help="step of the Lagrange multiplier per unit of excess episode cost (default 0.05)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr (progress.log still has them)")

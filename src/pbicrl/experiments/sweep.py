@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from pbicrl._atomic import write_json
-from pbicrl.cli.deprecated import moved_to_cli
+from pbicrl._moved import moved_to_cli
 from pbicrl.experiments.tasks import (
     RESULT_FILE,
     OlderRuns,

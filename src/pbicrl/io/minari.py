@@ -18,7 +18,10 @@ states and actions as actions, aligned with the feature rows (see :func:`from_mi
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -26,7 +29,93 @@ from numpy.typing import ArrayLike
 
 from pbicrl.inference.data import Dataset, DatasetError
 
-__all__ = ["from_minari", "load_feature_function"]
+__all__ = ["from_minari", "load_feature_function", "load_minari", "require_minari", "datasets_root", "MINARI_HINT",
+           "MINARI_CREATE_HINT"]
+
+MINARI_HINT = 'pip install "minari[hdf5]"'
+"""Reading and writing Minari datasets (HDF5 storage)."""
+MINARI_CREATE_HINT = 'pip install "minari[create]"'
+"""Recording datasets with ``minari.DataCollector`` (it needs JAX)."""
+
+
+def require_minari() -> Any:
+    """Import minari (with its HDF5 storage) or raise an ImportError naming the pip command.
+
+    Cheap and side-effect free: call it before running any user code that only makes sense with minari.
+    """
+    try:
+        import minari
+    except ImportError as exc:
+        raise ImportError(f"Minari datasets need minari ({exc}): {MINARI_HINT} (or pip install \"pbicrl[minari]\"; "
+                          f"recording new datasets with minari.DataCollector also needs {MINARI_CREATE_HINT})") from exc
+    try:
+        import h5py  # noqa: F401  (minari's default storage; without it every read fails deep inside minari)
+    except ImportError as exc:
+        raise ImportError(f"Minari datasets are stored in HDF5, which needs h5py ({exc}): {MINARI_HINT}") from exc
+    return minari
+
+
+@contextlib.contextmanager
+def datasets_root(root: str | os.PathLike | None) -> Iterator[None]:
+    """Point Minari at ``root`` for the duration of the block."""
+    if root is None:
+        yield
+        return
+    old = os.environ.get("MINARI_DATASETS_PATH")
+    os.environ["MINARI_DATASETS_PATH"] = str(Path(root).resolve())
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("MINARI_DATASETS_PATH", None)
+        else:
+            os.environ["MINARI_DATASETS_PATH"] = old
+
+
+def load_minari(dataset_id: str, root: str | os.PathLike | None = None) -> Any:
+    """Load a local Minari dataset (never downloads).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``root`` is not a directory, or there is no dataset ``dataset_id`` in it; the message lists the local
+        datasets (Minari's own would suggest ``download=True``, which pbicrl never does).
+    ValueError
+        A malformed id or an unreadable dataset.
+    """
+    minari = require_minari()
+    if root is not None and not Path(root).is_dir():
+        # Minari would create the directory; a typo must not leave an empty tree behind
+        raise FileNotFoundError(f"root: {root}: no such directory (the directory holding Minari datasets)")
+    if not isinstance(dataset_id, str) or not dataset_id.strip():
+        raise ValueError(f"dataset_id: expected a Minari dataset id such as 'namespace/name-v0', got {dataset_id!r}")
+    with datasets_root(root):
+        from minari.storage import get_dataset_path
+
+        where = Path(get_dataset_path(""))
+        path = Path(get_dataset_path(dataset_id))
+        if not (path / "data").is_dir():
+            local = _local_ids(minari)
+            listed = (", ".join(local[:10]) + (", ..." if len(local) > 10 else "")) if local else "none"
+            raise FileNotFoundError(
+                f"dataset_id: no Minari dataset {dataset_id!r} in {where} (local datasets: {listed}); pbicrl reads "
+                "local datasets only: pass --root DIR (root=) or set MINARI_DATASETS_PATH, or download it "
+                "first with Minari itself (minari download ID)")
+        try:
+            return minari.load_dataset(dataset_id, download=False)
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"dataset_id: {dataset_id!r} in {where} is incomplete ({exc})") from None
+        except (ValueError, KeyError, OSError) as exc:
+            raise ValueError(f"dataset_id: {dataset_id!r} in {where} cannot be read "
+                             f"({type(exc).__name__}: {exc})") from None
+
+
+def _local_ids(minari: Any) -> list[str]:
+    try:
+        return sorted(minari.list_local_datasets())
+    except Exception:  # a damaged dataset elsewhere in the directory must not hide the real message
+        return []
+
 
 FeatureFn = Callable[[Any], ArrayLike]
 
@@ -155,8 +244,6 @@ def from_minari(
     DatasetError
         With the episode id, for missing labels or features, bad shapes or a single group.
     """
-    from pbicrl.envs.minari_io import load_minari, require_minari
-
     require_minari()
     if isinstance(dataset, (str, os.PathLike)):
         dataset = load_minari(str(dataset), root)

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from pbicrl.cli.deprecated import moved_to_cli
+from pbicrl._moved import moved_to_cli
 from pbicrl.experiments.reproduce.configs import Context
 from pbicrl.experiments.reproduce.icl import exp_icl
 from pbicrl.experiments.reproduce.navigation import exp_fetch_reach, exp_grid, exp_point_mass

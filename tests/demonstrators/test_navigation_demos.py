@@ -7,6 +7,7 @@ import pytest
 
 pytest.importorskip("gymnasium")
 
+from pbicrl.errors import PbicrlWarning
 from pbicrl.inference.data import Dataset
 from pbicrl.demonstrators.navigation import Episode, generate_navigation_demos, make_nav_env, rollout_episodes
 from pbicrl.envs.point_mass import POINT_MASS_TASK
@@ -103,7 +104,8 @@ def test_minari_round_trip(tmp_path):
     pytest.importorskip("h5py")
     import gymnasium as gym
 
-    from pbicrl.envs.minari_io import episodes_to_minari, load_minari, minari_to_dataset
+    from pbicrl.envs.minari_io import episodes_to_minari, minari_to_dataset
+    from pbicrl.io.minari import from_minari, load_minari
     from pbicrl.envs.regions import FEATURE_NAMES
     from pbicrl.envs.registration import register_envs
 
@@ -119,7 +121,13 @@ def test_minari_round_trip(tmp_path):
     first = next(iter(mds.iterate_episodes()))
     np.testing.assert_allclose(first.actions, eps[0].actions, rtol=1e-6)
     np.testing.assert_allclose(first.rewards, eps[0].rewards)
-    ds = minari_to_dataset(mds, feature_names=FEATURE_NAMES)
+    ds = from_minari(mds, feature_names=FEATURE_NAMES, actions=False)  # the one converter
+    with pytest.warns(PbicrlWarning, match="minari_to_dataset is deprecated.*from_minari"):
+        old = minari_to_dataset(mds, feature_names=FEATURE_NAMES)
+    assert old.content_hash() == ds.content_hash()  # the deprecated name gives the same dataset
+    with_actions = from_minari(mds, feature_names=FEATURE_NAMES)
+    first_actions = with_actions.actions[with_actions.offsets[0]:with_actions.offsets[1]]
+    np.testing.assert_allclose(first_actions[:-1], eps[0].actions, rtol=1e-6)  # the final state has no action
     assert ds.group.tolist() == [e.group for e in eps]
     assert mds.spec.env_spec.id == "pbicrl/PointMass-v0"  # users can recover the environment
     for i, e in enumerate(eps):

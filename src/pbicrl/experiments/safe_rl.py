@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
-from pbicrl.cli.deprecated import moved_to_cli
+from pbicrl._moved import moved_to_cli
 
 __all__ = [
     "COSTS",

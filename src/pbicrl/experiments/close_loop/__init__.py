@@ -4,7 +4,7 @@ For each environment (point mass; HalfCheetah with a wall) the experiment
 
 1. infers the constraint from the shipped ranked demonstrations (``pbicrl infer``: point mass with its four
    known features; HalfCheetah with a parametric wall :math:`x \ge \vartheta`);
-2. trains, per seed, PPO-Lagrangian policies (:func:`pbicrl.safe_rl.train_safe`, the same settings for all)
+2. trains, per seed, PPO-Lagrangian policies (:func:`pbicrl.experiments.safe_rl.train_safe`, the same settings for all)
    that maximise the nominal return under a budget :math:`D` on the expected episode cost of
 
    * ``nominal``: no cost (the multiplier stays 0),
@@ -13,7 +13,7 @@ For each environment (point mass; HalfCheetah with a wall) the experiment
      ``indicator`` mode by default; other modes as ``inferred-<mode>``);
 3. evaluates every final policy (deterministic: the Gaussian's mean) on 100 episodes with the same reset
    seeds: violation rate (fraction of steps in a true constraint region / at or beyond the wall), true
-   return and nominal return (:func:`pbicrl.safe_rl.evaluate_policy`).
+   return and nominal return (:func:`pbicrl.experiments.safe_rl.evaluate_policy`).
 
 Everything is cached under ``--out`` (inference runs, ``train-safe`` directories, evaluations), so a rerun
 resumes where it stopped and retraining is never needed for the table. The stages that depend on a shipped
@@ -36,13 +36,12 @@ import json
 import sys
 import time
 from dataclasses import asdict, dataclass, field
-from importlib import import_module
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pbicrl.cli.deprecated import moved_to_cli
+from pbicrl._moved import moved_to_cli
 from pbicrl.experiments.kinds import shipped_data_tag
 
 __all__ = ["CloseLoopConfig", "EnvPlan", "default_config", "run"]
@@ -67,9 +66,9 @@ class EnvPlan:
     policies : tuple of str
         ``nominal``, ``true``, ``inferred`` (indicator) or ``inferred-<mode>``.
     ppo : dict
-        Overrides of :func:`pbicrl.safe_rl.ppo_config`.
+        Overrides of :func:`pbicrl.experiments.safe_rl.ppo_config`.
     warmup_steps : int
-        Steps of nominal training before the cost is on (:func:`pbicrl.safe_rl.train_safe`).
+        Steps of nominal training before the cost is on (:func:`pbicrl.experiments.safe_rl.train_safe`).
     constraints : list of dict or None
         Parametric constraints for the inference (``pbicrl infer --config`` tables).
     """
@@ -161,7 +160,7 @@ def _infer(plan: EnvPlan, cfg: CloseLoopConfig, out: Path) -> Path:
 
 def _paths(policy: Any, n: int) -> list[np.ndarray]:
     """Point-mass positions of ``n`` evaluation episodes (start included), for the figure."""
-    from pbicrl.safe_rl import make_env
+    from pbicrl.experiments.safe_rl import make_env
 
     env = make_env("point_mass")
     out = []
@@ -179,7 +178,7 @@ def _paths(policy: Any, n: int) -> list[np.ndarray]:
 
 def run(cfg: CloseLoopConfig, out: Path, docs: Path | None = None) -> dict[str, Any]:
     """Run (or resume) the experiment; returns the results (also ``out/results.json``)."""
-    from pbicrl.safe_rl import evaluate_policy, load_policy, train_safe
+    from pbicrl.experiments.safe_rl import evaluate_policy, load_policy, train_safe
 
     out.mkdir(parents=True, exist_ok=True)
     timing: dict[str, float] = {}
@@ -367,7 +366,3 @@ def plot_paths(paths: dict[str, list[np.ndarray]], path: Path, seed: int) -> Non
 
 
 __getattr__ = moved_to_cli(__name__, {"main": "pbicrl.cli.close_loop"})  # the command line moved
-
-
-if __name__ == "__main__":  # `python -m pbicrl.experiments.close_loop` (the documented command) still works
-    sys.exit(import_module("pbicrl.cli.close_loop").main())
