@@ -239,7 +239,7 @@ def infer(
                              dataset)
     wprior = weight_prior if weight_prior is not None else _weight_prior(**prior_settings)
     settings = SamplerSettings(
-        method=sampler, n_iterations=2 if auto else int(iterations), burn_in=None if auto else burn_in,
+        sampler=sampler, iterations=2 if auto else int(iterations), burn_in=None if auto else burn_in,
         thin=None if auto else thin, sigma=sigma, f_s=f_s,
         p_flip=p_flip, init_scale=init_scale, init_range=tuple(init_range), weight_prior=wprior,
         indicator_prior=indicator_prior if indicator_prior is not None else IndicatorPrior(indicator_pi),
@@ -259,7 +259,7 @@ def infer(
     if auto:
         stopping = StoppingRule(target_ess=float(target_ess), target_rhat=float(target_rhat), max_time=float(max_time),
                                 **({} if burn_in is None else {"warmup": int(burn_in)}))
-    post = sample(lik, settings, n_chains=chains, seed=seed, n_jobs=jobs, progress=progress,
+    post = sample(lik, settings, chains=chains, seed=seed, jobs=jobs, progress=progress,
                   feature_names=dataset.feature_names, constraints=cset, identified=ident, stopping=stopping)
     K = dataset.n_groups
     m = Margins.parse(margins, K)

@@ -16,7 +16,8 @@ from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["InferConfig", "ConfigError", "DEPRECATED_NAMES", "canonical_names", "check_setting", "load_config"]
+__all__ = ["InferConfig", "ConfigError", "DEPRECATED_NAMES", "canonical_names", "accept_old_names", "check_setting",
+           "load_config"]
 
 
 class ConfigError(ValueError):
@@ -236,6 +237,38 @@ def canonical_names(values: Mapping[str, Any], *, where: str = "setting", stackl
              stacklevel=stacklevel + 1)
         out[new] = value
     return out
+
+
+def accept_old_names(cls: type, where: str) -> type:
+    """Class decorator: the constructor of dataclass ``cls`` also takes the old names of its fields
+    (:data:`DEPRECATED_NAMES` that name one of them), with a :class:`~pbicrl.errors.PbicrlWarning`, and each old
+    name reads as a deprecated property.
+
+    ``where`` names the class in the messages (``"SamplerSettings"``).
+    """
+    init = cls.__init__
+    olds = {old: new for old, new in DEPRECATED_NAMES.items() if new in getattr(cls, "__dataclass_fields__", {})}
+
+    def __init__(self: Any, *args: Any, **kw: Any) -> None:
+        if kw.keys() & olds.keys():
+            kw = canonical_names(kw, where=f"{where} argument", stacklevel=2)
+        init(self, *args, **kw)
+
+    __init__.__doc__, __init__.__wrapped__ = init.__doc__, init  # type: ignore[attr-defined]
+    cls.__init__ = __init__  # type: ignore[method-assign]
+
+    def alias(old: str, new: str) -> property:
+        def get(self: Any) -> Any:
+            from pbicrl.errors import warn
+
+            warn(f"{where}.{old} is deprecated and will be removed in pbicrl 0.3: use {where}.{new}", stacklevel=2)
+            return getattr(self, new)
+
+        return property(get, doc=f"Deprecated name of :attr:`{new}` (until pbicrl 0.3).")
+
+    for old, new in olds.items():
+        setattr(cls, old, alias(old, new))
+    return cls
 
 
 def check_setting(key: str, value: Any, *, where: str = "config") -> None:

@@ -24,7 +24,7 @@ def fake_posterior(penalty, indicators=None, *, log_likelihood=None, parameters=
     return SimpleNamespace(indicators=ind, penalty_weights=penalty, log_likelihood=ll, log_prior=np.zeros((C, D)),
                            feature_names=tuple(f"x{j}" for j in range(d)), parameters=parameters,
                            parameter_names=parameter_names, map_indicators=np.ones(d, np.int8),
-                           map_penalty_weights=np.zeros(d), method="pbicrl", settings={}, seed=0)
+                           map_penalty_weights=np.zeros(d), sampler="pbicrl", settings={}, seed=0)
 
 
 @pytest.fixture(scope="module")

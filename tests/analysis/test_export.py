@@ -254,7 +254,7 @@ def test_without_the_likelihood_there_is_no_log_likelihood_group(ranked):
     prob, post = ranked
     bare = SimpleNamespace(**{k: getattr(post, k) for k in (
         "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
-        "map_penalty_weights", "method", "settings", "seed")}, extra={})
+        "map_penalty_weights", "sampler", "settings", "seed")}, extra={})
     with pytest.warns(PbicrlWarning, match="pass the run's dataset"):
         data = export.to_arviz(bare, pointwise="auto")
     assert "log_likelihood" not in _groups(data) and "total_log_likelihood" in data["sample_stats"]
@@ -271,7 +271,7 @@ def test_settings_that_do_not_reproduce_the_run_are_refused(ranked):
     prob, post = ranked
     wrong = SimpleNamespace(**{k: getattr(post, k) for k in (
         "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
-        "map_penalty_weights", "method", "seed", "extra")}, settings=post.settings | {"beta": 2.0})
+        "map_penalty_weights", "sampler", "seed", "extra")}, settings=post.settings | {"beta": 2.0})
     with pytest.raises(ValueError, match="the run recorded"):
         export.run_likelihood(wrong, prob.dataset)
     with pytest.raises(ValueError, match="the run recorded"):
@@ -338,7 +338,7 @@ def test_per_draw_move_and_acceptance_go_to_sample_stats(ranked):
     rng = np.random.default_rng(1)
     fake = SimpleNamespace(**{k: getattr(post, k) for k in (
         "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
-        "map_penalty_weights", "method", "settings", "seed")}, extra={},
+        "map_penalty_weights", "sampler", "settings", "seed")}, extra={},
         move=rng.integers(1, 3, (C, D)), accepted=rng.random((C, D)) < 0.3,
         acceptance_fraction=rng.random((C, D)))
     stats = export.to_arviz(fake, pointwise=False)["sample_stats"]
@@ -348,7 +348,7 @@ def test_per_draw_move_and_acceptance_go_to_sample_stats(ranked):
     # chains that do not record them: only the per-draw totals
     bare = SimpleNamespace(**{k: getattr(post, k) for k in (
         "indicators", "penalty_weights", "log_likelihood", "log_prior", "feature_names", "map_indicators",
-        "map_penalty_weights", "method", "settings", "seed")}, extra={})
+        "map_penalty_weights", "sampler", "settings", "seed")}, extra={})
     plain = export.to_arviz(bare, pointwise=False)["sample_stats"]
     assert set(plain.data_vars) == {"total_log_likelihood", "lp", "log_prior"}
 
@@ -435,7 +435,7 @@ def test_constant_indicators_are_not_applicable_for_rhat_not_nan(ranked):
     fake = SimpleNamespace(indicators=c, penalty_weights=wp, log_likelihood=post.log_likelihood,
                            log_prior=post.log_prior, feature_names=("on", "off", "mixed"),
                            map_indicators=np.array([1, 0, 1], np.int8), map_penalty_weights=np.array([-1.0, 0, -2]),
-                           method="pbicrl", settings={}, seed=0, extra={})
+                           sampler="pbicrl", settings={}, seed=0, extra={})
     data = export.to_arviz(fake, pointwise=False)
     p = data["posterior"]
     assert list(p["indicator"].coords["indicator_feature"].values) == ["mixed"]

@@ -124,7 +124,7 @@ def fake_post(C=2, D=400, *, p_on=(0.75, 1.0), seed=0, settings=None, method="pb
     wp = rng.normal(-5.0, 1.0, (C, D, d)) * ind  # reversible jump: w_p = 0 while inactive
     names = tuple("abcdefgh"[:d])
     out = SimpleNamespace(indicators=ind, penalty_weights=wp, log_likelihood=rng.normal(-10, 1, (C, D)),
-                          log_prior=np.zeros((C, D)), feature_names=names, method=method,
+                          log_prior=np.zeros((C, D)), feature_names=names, sampler=method,
                           settings=settings if settings is not None else {}, parameters=None, parameter_names=(),
                           parameter_owner=())
     if params:
@@ -189,9 +189,9 @@ def test_prior_bounds_are_marked_where_the_draws_reach_them():
     axd = plots.plot_posteriors(post).subfigs[0].axes[1]
     assert _dotted_at(axd, -6.0, "x") and not _dotted_at(axd, 50.0, "x")  # 50 lies far outside the range
     assert _dotted_at(plots.plot_traces(post).axes[0], -6.0, "y")
-    post.method = "paper"  # Algorithm 1 samples with an improper prior: nothing to mark
+    post.sampler = "paper"  # Algorithm 1 samples with an improper prior: nothing to mark
     assert not _dotted_at(plots.plot_posteriors(post).subfigs[0].axes[1], -6.0, "x")
-    post.method, post.settings = "pbicrl", {}  # no prior recorded
+    post.sampler, post.settings = "pbicrl", {}  # no prior recorded
     assert not _dotted_at(plots.plot_posteriors(post).subfigs[0].axes[1], -6.0, "x")
 
 

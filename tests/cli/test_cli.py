@@ -42,7 +42,7 @@ def test_config_file_and_cli_override(data_path, tmp_path):
     out = tmp_path / "run"
     assert main(["infer", str(data_path), "--out", str(out), "--config", str(cfg), "--seed", "1", "--no-progress"]) == 0
     s = json.loads((out / "summary.json").read_text())
-    assert s["method"] == "bpl" and s["iterations"] == 2000 and s["seed"] == 1
+    assert s["sampler"] == "bpl" and s["iterations"] == 2000 and s["seed"] == 1
     assert s["extra"]["margins"]["m13"] == 6.0
 
 
@@ -164,7 +164,7 @@ def test_deprecated_names_in_a_config_file_are_reported_once(data_path, tmp_path
     assert "pbicrl: warning: config key 'method' is deprecated and will be removed in pbicrl 0.3: use 'sampler'" in err
     assert err.count("'n_iterations' is deprecated") == 1 and "Traceback" not in err
     s = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert s["method"] == "paper" and s["iterations"] == 500 and s["chains"] == 1
+    assert s["sampler"] == "paper" and s["iterations"] == 500 and s["chains"] == 1
 
 
 def test_identify_prints_each_warning_once_and_short(capsys):

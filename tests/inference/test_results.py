@@ -6,6 +6,7 @@ Every expected number here is worked out by hand from small hand-made chains (no
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import warnings
@@ -42,7 +43,7 @@ def make_post(ind: Any, wp: Any, *, names: tuple[str, ...] | None = None, settin
                      map_indicators=ind[0, 0].copy(), map_penalty_weights=wp[0, 0].copy(),
                      map_log_posterior=kw.pop("map_log_posterior", 0.0),
                      map_log_likelihood=kw.pop("map_log_likelihood", 0.0),
-                     feature_names=names or tuple("abcdefgh"[:d]), method="pbicrl", settings=base | (settings or {}),
+                     feature_names=names or tuple("abcdefgh"[:d]), sampler="pbicrl", settings=base | (settings or {}),
                      counts=counts, seed=0, runtime_s=0.5, chain_runtime_s=np.full(C, 0.25), **kw)
 
 
@@ -78,7 +79,8 @@ def test_selected_is_the_median_probability_set(hand):
     assert hand.selected() == ["a"]  # b has exactly 0.5: not selected (strictly more than half)
     s = hand.summary()
     assert s["selected"] == ["a"]
-    assert s["schema_version"] == SCHEMA_VERSION == 2
+    assert s["schema_version"] == SCHEMA_VERSION == 3
+    assert s["sampler"] == "pbicrl" and "method" not in s
 
 
 def test_most_frequent_set_counts_all_chains(hand):
@@ -187,7 +189,7 @@ def test_prior_driven_is_measured_not_copied_from_the_identification():
     assert s["identified"]["features"]["a"]["min_penalty"] == 56.0
     assert post.min_penalty() == [56.0, 0.0]
     # the paper sampler ignores the prior: nothing to measure, so the identification's flag is used
-    paper = dataclasses.replace(post, method="paper", issue_warnings=False)
+    paper = dataclasses.replace(post, sampler="paper", issue_warnings=False)
     assert paper.prior_driven() == [True, False]
     assert paper.summary()["posterior"]["penalty_given_active"]["prior_driven"] == {"a": True, "b": False}
 
@@ -437,11 +439,52 @@ def test_table_without_identification_says_so(hand):
 
 
 # ---------------------------------------------------------------------------------------------- run directories
+def _as_version_2(run: Path) -> None:
+    """Rewrite a run directory as pbicrl wrote it before the sampler was called ``sampler`` (schema 2)."""
+    s = json.loads((run / "summary.json").read_text())
+    s["schema_version"] = 2
+    s["method"] = s.pop("sampler")
+    if "sampler" in s["settings"]:  # runs of the samplers record it there (make_post's hand-made settings do not)
+        s["settings"]["method"] = s["settings"].pop("sampler")
+    if isinstance(s.get("prior"), dict) and "sampler" in s["prior"]:
+        s["prior"]["method"] = s["prior"].pop("sampler")
+    (run / "summary.json").write_text(json.dumps(s))
+
+
+def test_a_version_2_run_loads_with_its_sampler_under_the_new_name(tmp_path):
+    post = quiet(make_post, IND, WP, settings={"thin": 1})
+    post = dataclasses.replace(post, sampler="paper", issue_warnings=False)
+    run = post.save(tmp_path / "run")
+    _as_version_2(run)
+    rec = read_run(run)
+    assert rec.schema_version == 2 and rec.sampler == "paper"
+    with pytest.warns(PbicrlWarning, match="RunRecord.method is deprecated"):
+        assert rec.method == "paper"
+    back = Posterior.load(run, issue_warnings=False)
+    assert back.sampler == "paper" and back.indicator_meaning == "chain_frequency"
+    assert back.table() == post.table()
+    resaved = json.loads((back.save(tmp_path / "again") / "summary.json").read_text())
+    assert resaved["schema_version"] == SCHEMA_VERSION and resaved["sampler"] == "paper"
+
+
+def test_the_old_name_of_the_sampler_still_builds_and_reads_a_posterior():
+    post = quiet(make_post, IND, WP)
+    given = {f.name: getattr(post, f.name) for f in dataclasses.fields(post) if f.name != "sampler"}
+    with pytest.warns(PbicrlWarning, match="Posterior argument 'method' is deprecated.*'sampler'"):
+        old = Posterior(**(given | {"issue_warnings": False}), method="paper")
+    assert old.sampler == "paper"
+    with pytest.warns(PbicrlWarning, match="Posterior.method is deprecated.*Posterior.sampler"):
+        assert old.method == "paper"
+
+
 def _as_version_1(run: Path) -> None:
     """Rewrite a run directory as the previous pbicrl wrote it (no schema_version, no new keys)."""
     s = json.loads((run / "summary.json").read_text())
     for k in ("schema_version", "selected", "most_frequent_set", "not_identifiable", "identified", "prior"):
         s.pop(k)
+    s["method"] = s.pop("sampler")
+    if "sampler" in s["settings"]:
+        s["settings"]["method"] = s["settings"].pop("sampler")
     s["map"].pop("definition")
     pga = s["posterior"]["penalty_given_active"]
     s["posterior"]["penalty_given_active"] = {"mean": pga["mean"], "ci90": pga["ci90"]}
@@ -488,18 +531,18 @@ def test_hand_posteriors_round_trip_exactly(tmp_path):
     assert back.prior_driven() == post.prior_driven() and back.not_identifiable() == post.not_identifiable()
 
 
-def test_version_2_round_trip_keeps_identification(tmp_path):
+def test_round_trip_keeps_identification(tmp_path):
     ident = {"separable": True, "alpha": 0.05, "parameters": {},
              "features": {"c": {"min_penalty": None, "unbounded": False, "identifiable": False, "reason": "constant"}}}
     post = quiet(make_post, IND, WP, identified=ident)
     rec = read_run(post.save(tmp_path / "run"))
-    assert rec.schema_version == 2
+    assert rec.schema_version == SCHEMA_VERSION
     assert rec.identified == json_safe(post.identified)
     assert rec.not_identifiable() == {"c": "constant"}
     assert diagnostics.compute(rec).to_dict()["penalty"]["c"]["rhat"] is None
 
 
-@pytest.mark.parametrize("version, match", [(3, "newer pbicrl"), ("2", "positive integer"), (0, "positive integer")])
+@pytest.mark.parametrize("version, match", [(4, "newer pbicrl"), ("2", "positive integer"), (0, "positive integer")])
 def test_unreadable_schema_versions_are_named(tmp_path, hand, version, match):
     run = hand.save(tmp_path / "run")
     s = json.loads((run / "summary.json").read_text())

@@ -33,6 +33,7 @@ from typing import Any, Literal, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.config import canonical_names
 from pbicrl.errors import PbicrlWarning
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.preferences import Preferences
@@ -295,14 +296,15 @@ def run_sbc(
     *,
     n_replicates: int = 200,
     L: int = 80,
-    n_chains: int = 4,
-    n_iterations: int = 20_000,
+    chains: int = 4,
+    iterations: int = 20_000,
     burn_in: int | None = None,
     seed: int = 0,
     bins: int = 9,
     diagnose: bool = False,
     progress: Any = None,
     p_joint: float = 0.0,
+    **deprecated: Any,
 ) -> SBCResult:
     """Run SBC of the ``pbicrl`` sampler.
 
@@ -312,10 +314,11 @@ def run_sbc(
     n_replicates : int
         Simulated data sets (each a fresh prior draw).
     L : int
-        Posterior draws per replicate used for the rank (``L / n_chains`` per chain, evenly spaced after
+        Posterior draws per replicate used for the rank (``L / chains`` per chain, evenly spaced after
         warm-up, so that they are close to independent). ``L + 1`` must be divisible by ``bins``.
-    n_chains, n_iterations, burn_in : int
-        Sampler settings per replicate (``burn_in`` default: a quarter).
+    chains, iterations, burn_in : int
+        Sampler settings per replicate (``burn_in`` default: a quarter); ``n_chains``, ``n_iterations`` (the old
+        names) work until pbicrl 0.3 with a :class:`~pbicrl.errors.PbicrlWarning`.
     seed : int
         Everything (prior draws, data, chains, tie-breaking) follows from it.
     bins : int
@@ -328,6 +331,13 @@ def run_sbc(
     progress : callable, optional
         Called as ``progress(replicate_index)`` after each replicate.
     """
+    if deprecated:
+        unknown = sorted(set(deprecated) - {"n_chains", "n_iterations"})
+        if unknown:
+            raise TypeError(f"run_sbc() got an unexpected keyword argument {unknown[0]!r}")
+        renamed = canonical_names(deprecated, where="run_sbc() argument", stacklevel=2)
+        chains, iterations = renamed.get("chains", chains), renamed.get("iterations", iterations)
+    n_chains, n_iterations = chains, iterations
     problem = SBCProblem() if problem is None else problem
     if L % n_chains:
         raise ValueError(f"L: {L} draws must split evenly over {n_chains} chains")
@@ -339,11 +349,11 @@ def run_sbc(
     # the ranked draws are every 10th of them.
     kept = int(n_iterations) - burn
     if kept < per_chain:
-        raise ValueError(f"n_iterations: {n_iterations} iterations with {burn} warm-up keep fewer than the {per_chain} "
+        raise ValueError(f"iterations: {n_iterations} iterations with {burn} warm-up keep fewer than the {per_chain} "
                          "draws per chain to rank")
     stride = min(10, kept // per_chain)
     thin = max(1, kept // (per_chain * stride))
-    settings = SamplerSettings(method="pbicrl", n_iterations=int(n_iterations), burn_in=burn, thin=thin,
+    settings = SamplerSettings(sampler="pbicrl", iterations=int(n_iterations), burn_in=burn, thin=thin,
                                weight_prior=problem.weight_prior, indicator_prior=problem.indicator_prior,
                                p_joint=float(p_joint))
     root = np.random.SeedSequence(int(seed))
@@ -361,7 +371,7 @@ def run_sbc(
         lik, c, wp = simulate(problem, np.random.default_rng(s_data))
         with warnings.catch_warnings():  # hundreds of short replicates: their per-run warnings are noise here
             warnings.simplefilter("ignore", PbicrlWarning)
-            post = sample(lik, settings, n_chains=n_chains, seed=int(s_chain.generate_state(1)[0]), n_jobs=1,
+            post = sample(lik, settings, chains=n_chains, seed=int(s_chain.generate_state(1)[0]), jobs=1,
                           progress=False)
         pick = np.arange(post.n_draws - 1, -1, -stride)[:per_chain][::-1]  # evenly spaced, ending at the last
         ind = post.indicators[:, pick, :].reshape(-1, d).astype(np.float64)
@@ -395,7 +405,7 @@ def run_sbc(
             min_ess.append(math.nan if w["ess_bulk"] is None else w["ess_bulk"])
         if progress is not None:
             progress(r)
-    res = SBCResult(problem, names, ranks, L, settings.to_dict() | {"n_chains": n_chains, "draws_per_chain": per_chain,
+    res = SBCResult(problem, names, ranks, L, settings.to_dict() | {"chains": n_chains, "draws_per_chain": per_chain,
                                                              "ranked_every": stride * thin},
                     runtime_s=time.perf_counter() - t0)
     res.tests = uniformity(ranks, L, bins=bins, seed=int(seed))

@@ -224,7 +224,7 @@ def _prior_draws(post: Any, n: int, rng: np.random.Generator) -> NDArray[np.floa
     from pbicrl.inference.draws import indicator_meaning
     from pbicrl.inference.sensitivity import sample_prior, weight_prior_spec
 
-    if indicator_meaning(getattr(post, "method", None)) == "chain_frequency" or post.parameter_names:
+    if indicator_meaning(getattr(post, "sampler", None)) == "chain_frequency" or post.parameter_names:
         return None
     settings = post.settings
     prior = getattr(post, "prior", None)
@@ -233,7 +233,7 @@ def _prior_draws(post: Any, n: int, rng: np.random.Generator) -> NDArray[np.floa
     src = prior if isinstance(prior, dict) and prior else settings.get("weight_prior")
     d = post.n_features
     model = post.in_model()
-    pi = (settings.get("indicator_prior") or {}).get("pi", 0.5) if indicator_meaning(post.method) == "posterior" else 1.0
+    pi = (settings.get("indicator_prior") or {}).get("pi", 0.5) if indicator_meaning(post.sampler) == "posterior" else 1.0
     out = np.zeros((n, d))
     for j in range(d):
         if not model[j]:

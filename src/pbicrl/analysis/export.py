@@ -664,7 +664,7 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
                 const_coords["trajectory"] = np.arange(N)
     groups["constant_data"] = xr.Dataset(const, coords=const_coords)
 
-    attrs = {"inference_library": "pbicrl", "method": str(getattr(post, "method", "")),
+    attrs = {"inference_library": "pbicrl", "sampler": str(getattr(post, "sampler", "")),
              "seed": int(getattr(post, "seed", 0)), "settings_json": json.dumps(settings, default=_json_default)}
     try:
         from pbicrl._version import __version__

@@ -140,7 +140,7 @@ def _weight_bounds(post: Any) -> list[tuple[float, ...]]:
     names = [str(n) for n in post.feature_names]
     src = _prior_source(post)
     s = _settings(post)
-    method = str(getattr(post, "method", s.get("method", "")))
+    method = str(getattr(post, "sampler", s.get("sampler", s.get("method", ""))))
     base = None
     if src is not None:
         base = src if "kind" in src else next((src[k] for k in ("weight_prior", "weight")
@@ -622,7 +622,7 @@ def plot_p_constraint(post: Any, *, truth: Mapping[str, float] | None = None,
     handles.append(Line2D([], [], color="k", marker=".", ls="none", ms=6, label="per chain"))
     fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), frameon=False)
     fig.suptitle("Posterior probability that each feature is a constraint" if meaning == "posterior" else
-                 f"Frequency on in the chain ({post.method} sampler: not a posterior probability)")
+                 f"Frequency on in the chain ({post.sampler} sampler: not a posterior probability)")
     return fig
 
 
@@ -994,7 +994,7 @@ def _truth_list(values: Sequence[Any], names: Sequence[str]) -> dict[str, float]
 # --------------------------------------------------------------------------------------------- all figures
 def _meaning(post: Any) -> str:
     from pbicrl.inference.draws import indicator_meaning
-    return indicator_meaning(getattr(post, "method", None))
+    return indicator_meaning(getattr(post, "sampler", None))
 
 
 def _in_model(post: Any, d: int) -> NDArray[np.bool_]:

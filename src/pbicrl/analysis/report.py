@@ -197,18 +197,18 @@ def footer(post: Any, psum: dict[str, dict[str, Any]] | None = None, pd: list[bo
     elif driven:
         src = "the identification" if post.identified is not None else \
             "heuristic: interval end beyond the prior's own 5%/95% quantile"
-        foot.append(f"* prior-driven ({src}; not measured: the {post.method} sampler ignores the prior or it "
+        foot.append(f"* prior-driven ({src}; not measured: the {post.sampler} sampler ignores the prior or it "
                     f"cannot be reweighted): {', '.join(driven)}: the data leave this end open, so it, "
                     "the median and the mean move with the prior")
     if skip:
         foot.append("not identifiable (no R-hat/ESS): " + "; ".join(f"{n} ({r})" for n, r in skip.items()))
-    if post.method in ("authors", "paper"):
+    if post.sampler in ("authors", "paper"):
         st = post.authors_statistic()
         foot.append(f"authors' statistic (mean of c*w_p over the last {st['last_iterations']} iterations, mean of "
                     "chains) vs mean over all kept draws: " + "; ".join(
                         f"{n} {_num(st['value'][n], 9)} vs {_num(st['posterior_mean'][n], 9)}" for n in names))
     acc = ", ".join(f"{k} {v:.1%}" for k, v in post.acceptance_rate().items())
-    foot.append(f"method {post.method}; {post.n_chains} chains x {post.settings['iterations']:,} iterations "
+    foot.append(f"sampler {post.sampler}; {post.n_chains} chains x {post.settings['iterations']:,} iterations "
                 f"({post.n_draws} kept each); acceptance {acc}; {post.runtime_s:.2f} s")
     foot.append(diag.footer(compact=True))
     foot += [f"warning: {m}" for m in post.warnings()]
@@ -224,7 +224,7 @@ def _indicator_footer(post: Any) -> str:
     if post.indicator_meaning == "chain_frequency":
         on = [n for n, c in zip(post.feature_names, post.map_indicators) if c]
         return (f"freq on: {INDICATOR_LABELS['chain_frequency']} (share of kept draws with c_j = 1). The "
-                f"{post.method} sampler's indicator moves (Algorithm 1: likelihood-ratio acceptance, latent "
+                f"{post.sampler} sampler's indicator moves (Algorithm 1: likelihood-ratio acceptance, latent "
                 "weights) do not target a posterior, so this is not P(c=1) and no set is selected from it. MAP: "
                 f"indicators of the highest-density visited draw, as the paper reports: {{{', '.join(on)}}}; "
                 f"most frequent set in the chain: {most}")

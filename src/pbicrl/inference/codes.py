@@ -10,7 +10,7 @@ changes results silently. Editing this file invalidates every cached compiled fu
 Families
 --------
 ``MODE_*``
-    The sampler (:attr:`pbicrl.inference.samplers.SamplerSettings.method`): :data:`MODES`.
+    The sampler (:attr:`pbicrl.inference.samplers.SamplerSettings.sampler`): :data:`MODES`.
 ``MOVE_*``
     The move of one iteration. ``MOVE_NONE`` .. ``MOVE_PARAMETER`` are also the per-draw codes of
     ``Posterior.move`` (:data:`MOVES`); ``MOVE_JOINT`` (all active weights at once) is recorded per draw and in

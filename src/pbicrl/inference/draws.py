@@ -110,7 +110,7 @@ class DrawsView:
     @property
     def indicator_meaning(self) -> str:
         """``posterior``, ``chain_frequency`` or ``fixed`` (:data:`INDICATOR_MEANINGS` of :attr:`method`)."""
-        return indicator_meaning(getattr(self, "method", None))
+        return indicator_meaning(getattr(self, "sampler", None))
 
     @property
     def indicators_are_posterior(self) -> bool:

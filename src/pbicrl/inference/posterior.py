@@ -22,8 +22,8 @@ the mode of a common space and not a recommended point estimate.
 ``summary.json`` (:func:`pbicrl.inference.summary.summary_dict`, schema version
 :data:`~pbicrl.inference.summary.SCHEMA_VERSION`; files without ``schema_version`` are version 1)::
 
-    schema_version       2
-    method, feature_names
+    schema_version       3 (2: ``method`` for ``sampler``, and ``settings.method``; 1: no ``schema_version``)
+    sampler, feature_names
     indicators           {"meaning": "posterior" | "chain_frequency" | "fixed", "label": ...}
                          (:data:`~pbicrl.inference.draws.INDICATOR_MEANINGS`)
     selected             [names with P(c=1) > 0.5] (pbicrl sampler; null for paper, authors, bpl)
@@ -69,6 +69,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl import errors
+from pbicrl.config import accept_old_names
 from pbicrl.inference.codes import C_FLIP_ACC, C_FLIP_PROP, C_T_ACC, C_T_PROP, C_W_ACC, C_W_PROP, N_COUNTS
 from pbicrl.inference.draws import LEVEL, DrawsView, split_rhat
 from pbicrl.inference.posterior_warnings import PosteriorWarnings
@@ -105,7 +106,8 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
         The highest-density visited draw over all chains (:data:`MAP_DEFINITION`).
     map_log_posterior, map_log_likelihood : float
     feature_names : tuple of str
-    method : str
+    sampler : str
+        ``pbicrl``, ``paper``, ``authors`` or ``bpl`` (formerly ``method``, still accepted until pbicrl 0.3).
     settings : dict
     counts : ndarray, (chains, N_COUNTS)
         Flip proposals/accepts, weight proposals/accepts, likelihood evaluations, parameter proposals/accepts.
@@ -155,7 +157,7 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
     map_log_posterior: float
     map_log_likelihood: float
     feature_names: tuple[str, ...]
-    method: str
+    sampler: str
     settings: dict
     counts: NDArray[np.int64]
     seed: int
@@ -250,7 +252,7 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
             map_log_posterior=float(results[best]["map_log_posterior"]),
             map_log_likelihood=float(results[best]["map_log_likelihood"]),
             feature_names=names,
-            method=kernel.settings.method,
+            sampler=kernel.settings.sampler,
             settings=kernel.settings.to_dict() | {"beta": kernel.likelihood.beta,
                                                   "constraints": None if cs is None else cs.to_dict(),
                                                   "nominal_weights": kernel.likelihood.nominal_weights.tolist(),
@@ -310,7 +312,7 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
             indicators=rec.indicators, penalty_weights=rec.penalty_weights, log_likelihood=rec.log_likelihood,
             log_prior=rec.log_prior, map_indicators=rec.map_indicators, map_penalty_weights=rec.map_penalty_weights,
             map_log_posterior=number(m.get("log_posterior")), map_log_likelihood=number(m.get("log_likelihood")),
-            feature_names=tuple(rec.feature_names), method=rec.method, settings=settings, counts=counts,
+            feature_names=tuple(rec.feature_names), sampler=rec.sampler, settings=settings, counts=counts,
             seed=rec.seed, runtime_s=number(s.get("runtime_s")),
             chain_runtime_s=(np.array([number(x) for x in chain_rt]) if isinstance(chain_rt, list)
                              else np.full(C, np.nan)),
@@ -364,7 +366,7 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
 
     # ------------------------------------------------------------------ display
     def __repr__(self) -> str:
-        parts = [f"method={self.method!r}", f"chains={self.n_chains}", f"draws={self.n_draws}",
+        parts = [f"sampler={self.sampler!r}", f"chains={self.n_chains}", f"draws={self.n_draws}",
                  f"features={self.n_features} {_short_names(self.feature_names)}"]
         if self.indicators_are_posterior:
             parts.append(f"selected={_short_names(self.selected())}")
@@ -527,6 +529,9 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
                 "value": {nm: to_py(v) for nm, v in zip(names, eff.mean(axis=0))},
                 "per_chain": {nm: [to_py(v) for v in eff[:, j]] for j, nm in enumerate(names)},
                 "posterior_mean": {nm: to_py(v) for nm, v in zip(names, self.mean_effective_penalty)}}
+
+
+accept_old_names(Posterior, "Posterior")  # method= until pbicrl 0.3
 
 
 # ---------------------------------------------------------------------------------------------- helpers

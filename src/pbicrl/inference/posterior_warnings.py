@@ -73,7 +73,7 @@ class PosteriorWarnings:
         ``|r| >= 0.8`` (pooled draws where both are on). Measured (``benchmarks/reports/speed.md``, section 7): on
         3 x 200 synthetic demonstrations, ``p_joint=0.4`` raised the smallest bulk ESS of such a pair from 23-27 to
         422-498 at the same iterations."""
-        if self.method not in ("pbicrl", "bpl") or self.n_chains < 2:
+        if self.sampler not in ("pbicrl", "bpl") or self.n_chains < 2:
             return []
         pj = self.settings.get("p_joint", 0.0)
         if not is_real(pj) or float(pj) > 0.0:

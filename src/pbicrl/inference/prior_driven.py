@@ -59,7 +59,7 @@ class PriorDrivenSummaries:
         cached = getattr(self, "_cache", {}).get(key)
         if cached is not None:
             return cached
-        latent = self.method in ("paper", "authors")
+        latent = self.sampler in ("paper", "authors")
         out = prior_sensitivity(self.indicators, self.penalty_weights,
                                 lambda j: None if latent else self._weight_prior_spec(j), self.in_model(), level=level)
         cache = dict(getattr(self, "_cache", {}))

@@ -21,7 +21,7 @@ from pbicrl.inference.draws import INDICATOR_LABELS
 __all__ = ["SCHEMA_VERSION", "MAP_DEFINITION", "summary_dict", "prior_driven_block", "json_safe", "to_py",
            "is_real"]
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 """Version of the ``summary.json`` layout :meth:`pbicrl.inference.posterior.Posterior.save` writes (files without
 one are 1)."""
 
@@ -58,7 +58,7 @@ def summary_dict(post: Any) -> dict[str, Any]:
         indicator_block = {"in_model": dict(zip(names, (bool(m) for m in post.in_model())))}
     out = {
         "schema_version": SCHEMA_VERSION,
-        "method": post.method,
+        "sampler": post.sampler,
         "feature_names": names,
         "indicators": {"meaning": meaning, "label": INDICATOR_LABELS[meaning]},
         "selected": post.selected() if posterior_c else None,
@@ -85,7 +85,7 @@ def summary_dict(post: Any) -> dict[str, Any]:
                 "active_draws": by_name(cs["active_draws"]),
             },
             "prior_driven": prior_driven_block(post),
-            **({"authors_statistic": post.authors_statistic()} if post.method in ("authors", "paper") else {}),
+            **({"authors_statistic": post.authors_statistic()} if post.sampler in ("authors", "paper") else {}),
             "prior_sensitivity": post.prior_sensitivity().to_dict(names),
             "rhat": {k: by_name(np.array(v)) for k, v in post.rhat().items()},
             "diagnostics": post.diagnostics().to_dict(),

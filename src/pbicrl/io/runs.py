@@ -10,7 +10,8 @@ with the same attribute names as a posterior (``indicators``, ``penalty_weights`
 ``feature_names``, ``map_indicators``, ...), so diagnostics, export and plots accept either, without warnings.
 
 ``summary.json`` carries a ``schema_version`` (:data:`SCHEMA_VERSION`; files written before
-it existed are version 1). Every version up to the current one loads: the fields added in version 2
+it existed are version 1; version 3 names the sampler ``sampler``, was ``method``, also in ``settings``). Every
+version up to the current one loads: the fields added in version 2
 (``selected``, ``most_frequent_set``, conditional medians, ...) are computed from the draws by the
 :class:`~pbicrl.inference.draws.DrawsView` methods, so they exist for old runs too; :attr:`RunRecord.identified`
 is ``None`` there. A newer version is refused with a message saying so.
@@ -49,7 +50,7 @@ _MAX_SUMMARY_BYTES = 64 << 20  # a summary.json is a few hundred KiB at most; mo
 
 # summary.json keys that readers use, and the JSON types they must have when present
 _SUMMARY_TYPES: dict[str, tuple[type, ...]] = {
-    "method": (str,), "feature_names": (list,), "parameter_names": (list,), "settings": (dict,), "extra": (dict,),
+    "sampler": (str,), "method": (str,), "feature_names": (list,), "parameter_names": (list,), "settings": (dict,), "extra": (dict,),
     "map": (dict,), "posterior": (dict,), "seed": (int,), "chains": (int,), "iterations": (int,),
     "warnings": (list,),  # schema_version: checked (positive integer, known version) by the reader
 }
@@ -108,13 +109,22 @@ class RunRecord(DrawsView):
     def __repr__(self) -> str:
         C, D, d = self.indicators.shape
         names = ", ".join(repr(n) for n in self.feature_names[:6]) + (", ..." if d > 6 else "")
-        return (f"RunRecord(path={str(self.path)!r}, method={self.method!r}, chains={C}, draws={D}, "
+        return (f"RunRecord(path={str(self.path)!r}, sampler={self.sampler!r}, chains={C}, draws={D}, "
                 f"features={d} [{names}], parameters={len(self.parameter_names)})")
 
     # Posterior-compatible views --------------------------------------------------------------
     @property
+    def sampler(self) -> str:
+        """``summary.json``'s ``sampler`` (``method`` before schema 3)."""
+        return str(self.summary.get("sampler", self.summary.get("method", "pbicrl")))
+
+    @property
     def method(self) -> str:
-        return str(self.summary.get("method", "pbicrl"))
+        """Deprecated name of :attr:`sampler` (until pbicrl 0.3)."""
+        from pbicrl.errors import warn
+
+        warn("RunRecord.method is deprecated and will be removed in pbicrl 0.3: use RunRecord.sampler", stacklevel=2)
+        return self.sampler
 
     @property
     def settings(self) -> dict:

@@ -179,8 +179,8 @@ def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_count
     t0 = time.perf_counter()
     state: ChainState = kernel.init(rng)
     done = 0
-    while done < s.n_iterations:
-        n = min(_CHUNK, s.n_iterations - done)
+    while done < s.iterations:
+        n = min(_CHUNK, s.iterations - done)
         state = stats.run(rng, state, n, out)
         done += n
         if progress_counter is not None:
@@ -225,11 +225,11 @@ def _move_codes(kernel: Kernel, iterations: np.ndarray, u_j: np.ndarray, u_mv: n
     p_theta = kernel.p_theta_
     j = cand[np.minimum((u_j * nc).astype(np.int64), nc - 1)]  # the loop's int(u * nc): truncation
     theta_move = (j >= dk) & (u_mv < p_theta)
-    if s.method in ("paper", "authors"):
-        first = 0 if s.method == "authors" else 1  # the paper counts iterations from 1, the authors' code from 0
+    if s.sampler in ("paper", "authors"):
+        first = 0 if s.sampler == "authors" else 1  # the paper counts iterations from 1, the authors' code from 0
         code = np.where((np.asarray(iterations) + first) % int(s.f_s) != 0, MOVE_FLIP,
                         np.where(theta_move, MOVE_PARAMETER, MOVE_WEIGHT))
-    elif s.method == "bpl":
+    elif s.sampler == "bpl":
         code = np.where(theta_move, MOVE_PARAMETER, MOVE_WEIGHT)
     else:
         flip = u_mv < s.p_flip
@@ -276,7 +276,7 @@ class _DrawStats:
     def _row(self, state: ChainState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``state`` as the compiled loop stores a draw (``pbicrl`` stores NaN for inactive constraints' theta)."""
         theta = np.asarray(state.parameters, dtype=np.float64).copy()
-        if self.kernel.settings.method == "pbicrl" and theta.size:
+        if self.kernel.settings.sampler == "pbicrl" and theta.size:
             theta[np.asarray(state.indicators)[self._owner] == 0] = np.nan
         return (np.asarray(state.indicators)[None], np.asarray(state.penalty_weights)[None], theta[None])
 
@@ -371,9 +371,9 @@ def sample(
     likelihood: PreferenceLikelihood,
     settings: SamplerSettings | None = None,
     *,
-    n_chains: int = 4,
+    chains: int = 4,
     seed: int = 0,
-    n_jobs: int | None = None,
+    jobs: int | None = None,
     progress: bool = True,
     feature_names: Sequence[str] | None = None,
     constraints: ConstraintSet | None = None,
@@ -381,19 +381,19 @@ def sample(
     stopping: "StoppingRule | None" = None,
     **overrides: Any,
 ) -> Posterior:
-    """Sample the posterior with ``n_chains`` independent chains.
+    """Sample the posterior with ``chains`` independent chains.
 
     Parameters
     ----------
     likelihood : PreferenceLikelihood
     settings : SamplerSettings, optional
-        Keyword ``overrides`` replace fields, e.g. ``sample(lik, method="bpl", n_iterations=10_000)``.
-    n_chains : int
-        Independent chains; chain ``k`` uses the ``k``-th child of ``numpy.random.SeedSequence(seed)``,
-        so results do not depend on ``n_jobs``.
+        Keyword ``overrides`` replace fields, e.g. ``sample(lik, sampler="bpl", iterations=10_000)``.
+    chains : int
+        Independent chains (formerly ``n_chains``); chain ``k`` uses the ``k``-th child of
+        ``numpy.random.SeedSequence(seed)``, so results do not depend on ``jobs``.
     seed : int
-    n_jobs : int, optional
-        Worker processes (default: one per core, at most one per chain). 1 runs in-process; compiled code
+    jobs : int, optional
+        Worker processes (formerly ``n_jobs``) (default: one per core, at most one per chain). 1 runs in-process; compiled code
         cannot be interrupted, so Ctrl-C then takes effect at the end of the current chunk of 20,000
         iterations (with workers it stops them at once).
     progress : bool
@@ -409,7 +409,7 @@ def sample(
         the warnings and the ``prior_driven`` flags.
     stopping : StoppingRule, optional
         Run until converged (``iterations = "auto"``): the chains run in rounds until every reported quantity
-        meets the rule's targets or its time is spent (see :class:`StoppingRule`); ``settings.n_iterations``,
+        meets the rule's targets or its time is spent (see :class:`StoppingRule`); ``settings.iterations``,
         ``burn_in`` and ``thin`` are then ignored. The verdict is ``Posterior.extra["convergence"]``.
 
     Raises
@@ -419,6 +419,12 @@ def sample(
     KeyboardInterrupt
         On Ctrl-C, after the worker processes have been stopped.
     """
+    if overrides:  # the old names n_chains, n_jobs (and method, n_iterations) work until 0.3, with a warning
+        from pbicrl.config import canonical_names
+
+        overrides = canonical_names(overrides, where="sample() argument", stacklevel=2)
+        chains, jobs = overrides.pop("chains", chains), overrides.pop("jobs", jobs)
+    n_chains, n_jobs = chains, jobs
     names = _feature_names(likelihood, feature_names)
     kernel = build_kernel(likelihood, settings, constraints=constraints, min_penalty=_min_penalty(identified),
                           **overrides)
@@ -433,7 +439,7 @@ def sample(
             _compile_here(kernel)  # once here rather than once per worker
     if stopping is not None:
         return _sample_auto(kernel, stopping, seeds, n_jobs, progress, names, identified, int(seed))
-    total = int(kernel.settings.n_iterations) * int(n_chains)
+    total = int(kernel.settings.iterations) * int(n_chains)
     bar = progress_bar(total, progress)
     t0 = time.perf_counter()
     try:
@@ -645,7 +651,7 @@ def _sample_auto(kernel: Kernel, rule: StoppingRule, seeds: Sequence[np.random.S
     """:func:`sample` with a :class:`StoppingRule`: rounds until converged or out of time."""
     s = kernel.settings
     big = 1 << 60
-    kernel = dataclasses.replace(kernel, settings=dataclasses.replace(s, n_iterations=big, burn_in=int(rule.warmup),
+    kernel = dataclasses.replace(kernel, settings=dataclasses.replace(s, iterations=big, burn_in=int(rule.warmup),
                                                                       thin=1))
     skip = _skip_names(identified)
     rngs = [np.random.default_rng(sd) for sd in seeds]
@@ -724,7 +730,7 @@ def _sample_auto(kernel: Kernel, rule: StoppingRule, seeds: Sequence[np.random.S
                   "runtime_s": float(cpu[k])})
         results.append(r)
     final = dataclasses.replace(kernel, settings=dataclasses.replace(
-        kernel.settings, n_iterations=int(done), burn_in=int(rule.warmup) + int(discard), thin=int(stride)))
+        kernel.settings, iterations=int(done), burn_in=int(rule.warmup) + int(discard), thin=int(stride)))
     post = Posterior.from_chains(results, kernel=final, seed=seed, runtime_s=runtime, feature_names=names,
                                  identified=identified, issue_warnings=False)
     post.extra["convergence"] = conv.to_dict() | {

@@ -50,13 +50,15 @@ unit :math:`1/(\\beta\\,\\mathrm{sd}_j)`, so rescaling a feature rescales its ch
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
+from pbicrl.config import accept_old_names, canonical_names
 from pbicrl.inference.codes import MODES, MOVE_NAMES, N_COUNTS
 from pbicrl.inference.constraints import ConstraintSet
 from pbicrl.inference.likelihood import PreferenceLikelihood
@@ -78,12 +80,12 @@ class SamplerSettings:
 
     Parameters
     ----------
-    method : {"pbicrl", "paper", "authors", "bpl"}
-        See module docstring.
-    n_iterations : int
-        Metropolis-Hastings iterations per chain (paper: 400,000).
+    sampler : {"pbicrl", "paper", "authors", "bpl"}
+        See module docstring (formerly ``method``).
+    iterations : int
+        Metropolis-Hastings iterations per chain (paper: 400,000; formerly ``n_iterations``).
     burn_in : int or None
-        Warm-up iterations, not kept (adaptation happens here). Default: a quarter of ``n_iterations``.
+        Warm-up iterations, not kept (adaptation happens here). Default: a quarter of ``iterations``.
     thin : int or None
         Keep every ``thin``-th draw after warm-up. Default: at most 10,000 draws per chain.
     sigma : float
@@ -130,10 +132,14 @@ class SamplerSettings:
         above the separation scale; steps proportional to the magnitude cross it in a few moves where fixed steps
         need thousands. Default: on for ``pbicrl`` (``False``: the moves on :math:`w` of earlier releases, which the
         chain reference keeps). Ignored by the other samplers.
+
+    The names are those of :class:`pbicrl.config.InferConfig` and ``summary.json``; ``method=`` and
+    ``n_iterations=`` (and the attributes of those names) work until pbicrl 0.3 with a
+    :class:`~pbicrl.errors.PbicrlWarning`. :meth:`from_dict` reads :meth:`to_dict` back.
     """
 
-    method: Literal["pbicrl", "paper", "authors", "bpl"] = "pbicrl"
-    n_iterations: int = 400_000
+    sampler: Literal["pbicrl", "paper", "authors", "bpl"] = "pbicrl"
+    iterations: int = 400_000
     burn_in: int | None = None
     thin: int | None = None
     sigma: float = 0.1
@@ -152,12 +158,12 @@ class SamplerSettings:
     log_moves: bool | None = None
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method: unknown sampler {self.method!r}; choose one of {', '.join(METHODS)}")
-        if int(self.n_iterations) < 1:
-            raise ValueError(f"iterations: must be >= 1, got {self.n_iterations}")
-        if self.burn_in is not None and not (0 <= int(self.burn_in) < int(self.n_iterations)):
-            raise ValueError(f"burn_in: must lie in [0, iterations), got {self.burn_in} for {self.n_iterations} iterations")
+        if self.sampler not in METHODS:
+            raise ValueError(f"sampler: unknown sampler {self.sampler!r}; choose one of {', '.join(METHODS)}")
+        if int(self.iterations) < 1:
+            raise ValueError(f"iterations: must be >= 1, got {self.iterations}")
+        if self.burn_in is not None and not (0 <= int(self.burn_in) < int(self.iterations)):
+            raise ValueError(f"burn_in: must lie in [0, iterations), got {self.burn_in} for {self.iterations} iterations")
         if self.thin is not None and int(self.thin) < 1:
             raise ValueError(f"thin: must be >= 1, got {self.thin}")
         if not (np.isfinite(self.sigma) and self.sigma > 0):
@@ -172,59 +178,98 @@ class SamplerSettings:
         if len(lo_hi) != 2 or not (np.isfinite(lo_hi[0]) and np.isfinite(lo_hi[1]) and lo_hi[0] < lo_hi[1]):
             raise ValueError(f"init_range: expected two finite numbers low < high, got {self.init_range!r}")
         object.__setattr__(self, "init_range", lo_hi)
-        if self.method == "pbicrl" and self.weight_prior.kind == "improper":
+        if self.sampler == "pbicrl" and self.weight_prior.kind == "improper":
             raise PriorError("weight prior: the pbicrl sampler needs a proper prior on w_p (P(c=1) is undefined "
-                             "otherwise); use 'student_t', 'normal' or 'flat' with bounds, or method='paper'")
+                             "otherwise); use 'student_t', 'normal' or 'flat' with bounds, or sampler='paper'")
         if self.candidates is not None:
             object.__setattr__(self, "candidates", tuple(int(j) for j in self.candidates))
         if not (np.isfinite(self.sigma_theta) and self.sigma_theta > 0):
             raise ValueError(f"sigma_theta: the parameter step must be positive, got {self.sigma_theta}")
         if self.p_theta is not None and not (0.0 <= self.p_theta < 1.0):
             raise ValueError(f"p_theta: must lie in [0, 1), got {self.p_theta}")
-        if self.method == "pbicrl" and self.p_theta is not None and self.p_flip + self.p_theta >= 1.0:
+        if self.sampler == "pbicrl" and self.p_theta is not None and self.p_flip + self.p_theta >= 1.0:
             raise ValueError(f"p_flip + p_theta must be < 1 (weight steps need the rest), got {self.p_flip} + {self.p_theta}")
         if not (0.0 <= float(self.p_joint) < 1.0):
             raise ValueError(f"p_joint: must lie in [0, 1), got {self.p_joint}")
-        if self.p_joint and self.method in ("paper", "authors"):
+        if self.p_joint and self.sampler in ("paper", "authors"):
             raise ValueError("p_joint: joint weight moves apply to the pbicrl and bpl samplers only")
-        rest = (self.p_flip if self.method == "pbicrl" else 0.0) + (self.p_theta or 0.0)
+        rest = (self.p_flip if self.sampler == "pbicrl" else 0.0) + (self.p_theta or 0.0)
         if self.p_joint and rest + self.p_joint >= 1.0:
             raise ValueError(f"p_joint: the move probabilities must leave room for single-weight steps, got "
                              f"p_joint {self.p_joint} with {rest} for flips and parameter steps")
 
     @property
     def burn_in_(self) -> int:
-        return int(self.n_iterations) // 4 if self.burn_in is None else int(self.burn_in)
+        return int(self.iterations) // 4 if self.burn_in is None else int(self.burn_in)
 
     @property
     def thin_(self) -> int:
         if self.thin is not None:
             return int(self.thin)
-        kept = int(self.n_iterations) - self.burn_in_
+        kept = int(self.iterations) - self.burn_in_
         return max(1, -(-kept // 10_000))
 
     @property
     def n_draws(self) -> int:
-        kept = int(self.n_iterations) - self.burn_in_
+        kept = int(self.iterations) - self.burn_in_
         return -(-kept // self.thin_)
 
     @property
     def adapt_(self) -> bool:
-        return self.method == "pbicrl" if self.adapt is None else bool(self.adapt)
+        return self.sampler == "pbicrl" if self.adapt is None else bool(self.adapt)
 
     @property
     def log_moves_(self) -> bool:
-        return self.method == "pbicrl" and (self.log_moves is None or bool(self.log_moves))
+        return self.sampler == "pbicrl" and (self.log_moves is None or bool(self.log_moves))
 
     def to_dict(self) -> dict:
-        return {"method": self.method, "iterations": int(self.n_iterations), "burn_in": self.burn_in_,
+        """Every setting, JSON-ready, under its :class:`~pbicrl.config.InferConfig` name (``summary.json``'s
+        ``settings``); :meth:`from_dict` reads it back."""
+        return {"sampler": self.sampler, "iterations": int(self.iterations), "burn_in": self.burn_in_,
                 "thin": self.thin_, "sigma": self.sigma, "f_s": self.f_s, "p_flip": self.p_flip,
                 "adapt": self.adapt_, "init_scale": self.init_scale,
-                "init_range": list(self.init_range) if self.method == "authors" else None, "weight_prior": self.weight_prior.to_dict(),
+                "init_range": list(self.init_range) if self.sampler == "authors" else None, "weight_prior": self.weight_prior.to_dict(),
                 "indicator_prior": {"pi": self.indicator_prior.pi},
                 "candidates": None if self.candidates is None else list(self.candidates),
                 "sigma_theta": self.sigma_theta, "p_theta": self.p_theta, "p_joint": float(self.p_joint),
                 "log_moves": self.log_moves_}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "SamplerSettings":
+        """The settings :meth:`to_dict` wrote (``summary.json``'s ``settings``, any schema version).
+
+        Keys that are not settings (``beta``, ``constraints``, ... of a run's record) are ignored; the old names
+        ``method`` and ``n_iterations`` are read with a :class:`~pbicrl.errors.PbicrlWarning`, except in a record
+        written by pbicrl before the rename (one that has no ``sampler``), which is read silently.
+
+        Raises
+        ------
+        ValueError
+            A setting out of range (the message names it), as the constructor.
+        """
+        d = dict(d)
+        if "sampler" not in d and "method" in d and "iterations" in d:  # a record of schema 1 or 2: no warning
+            d["sampler"] = d.pop("method")
+        d = canonical_names(d, where="SamplerSettings.from_dict key", stacklevel=2)
+        names = {f.name for f in fields(cls)}
+        kw: dict[str, Any] = {k: v for k, v in d.items() if k in names}
+        if isinstance(kw.get("weight_prior"), Mapping):
+            wp = {f.name for f in fields(WeightPrior)}
+            kw["weight_prior"] = WeightPrior(**{k: v for k, v in kw["weight_prior"].items() if k in wp})
+        if isinstance(kw.get("indicator_prior"), Mapping):
+            kw["indicator_prior"] = IndicatorPrior(float(kw["indicator_prior"].get("pi", 0.5)))
+        if kw.get("init_range") is None:
+            kw.pop("init_range", None)
+        return cls(**kw)
+
+    def replace(self, **changes: Any) -> "SamplerSettings":
+        """A copy with ``changes`` (the old names ``method``, ``n_iterations`` too, with a warning)."""
+        if "method" in changes or "n_iterations" in changes:
+            changes = canonical_names(changes, where="SamplerSettings argument", stacklevel=2)
+        return replace(self, **changes)
+
+
+accept_old_names(SamplerSettings, "SamplerSettings")  # method=, n_iterations= until pbicrl 0.3
 
 
 def _field(bundle: str, name: str, doc: str) -> property:
@@ -357,7 +402,7 @@ class Kernel:
             return 0.0
         if self.settings.p_theta is not None:
             return float(self.settings.p_theta)
-        return 0.25 if self.settings.method == "pbicrl" else 0.5
+        return 0.25 if self.settings.sampler == "pbicrl" else 0.5
 
     @cached_property
     def _settings_prior(self) -> ResolvedWeightPrior:
@@ -373,7 +418,7 @@ class Kernel:
         ``mean_features`` and ``beta``; parametric constraint features use :math:`\\mathrm{sd} = 0.5`. The paper
         mode uses the flat improper prior of Algorithm 1, whatever the settings say.
         """
-        if self.settings.method in _LATENT:
+        if self.settings.sampler in _LATENT:
             return WeightPrior("improper", sign="any").resolve(self.likelihood.mean_features, beta=self.likelihood.beta,
                                                                n_parametric=self.n_features - self.d_known)
         return self._settings_prior
@@ -392,17 +437,17 @@ class Kernel:
         Keys: the weight prior's choices (``kind``, ``sign``, ``low``/``high``/``support`` with ``None`` for
         infinite ends, ``mean``, ``scale``, ``df``, ``prior_scale``, ``scale_aware``), ``beta``, ``features``
         (by feature index as a string: resolved ``scale`` :math:`s_j`, ``feature_sd``, ``sd_source``,
-        ``support``), ``method``, ``applied`` (False in paper mode, which ignores priors) and ``indicator_pi``.
+        ``support``), ``sampler``, ``applied`` (False in paper mode, which ignores priors) and ``indicator_pi``.
         """
         s = self.settings
         out = self.resolved_prior.to_dict()
-        out.update({"method": s.method, "applied": s.method not in _LATENT,
-                    "indicator_pi": None if s.method == "bpl" else float(s.indicator_prior.pi)})
+        out.update({"sampler": s.sampler, "applied": s.sampler not in _LATENT,
+                    "indicator_pi": None if s.sampler == "bpl" else float(s.indicator_prior.pi)})
         return out
 
     def _step_unit(self) -> NDArray[np.float64]:
         """Per-feature unit of random-walk steps: 1 in paper mode (Algorithm 1 verbatim), else the prior's."""
-        return np.ones(self.n_features) if self.settings.method in _LATENT else self.resolved_prior.unit
+        return np.ones(self.n_features) if self.settings.sampler in _LATENT else self.resolved_prior.unit
 
     def _param_arrays(self) -> dict[str, NDArray]:
         if self.constraints is not None:
@@ -416,7 +461,7 @@ class Kernel:
 
     def _log_prior(self, c: NDArray, w: NDArray, theta: NDArray) -> float:
         s = self.settings
-        if s.method in _LATENT:
+        if s.sampler in _LATENT:
             return 0.0
         lpw = self.resolved_prior.logpdf(w)
         cs = self.constraints
@@ -425,7 +470,7 @@ class Kernel:
             width = np.log(cs.bounds[:, 1] - cs.bounds[:, 0])
             for m in range(cs.n_constraints):
                 lpt[self.d_known + m] = -width[cs.param_offsets[m]:cs.param_offsets[m + 1]].sum()
-        if s.method == "bpl":
+        if s.sampler == "bpl":
             cand = self._cand  # non-candidates are fixed at w = 0, not parameters of the model
             return float(np.sum(lpw[cand]) + np.sum(lpt[cand]))
         on = c.astype(bool)
@@ -465,17 +510,17 @@ class Kernel:
         prior = self.resolved_prior
         unit = self._step_unit()
         c = np.zeros(d, dtype=np.int8)
-        if s.method == "bpl":
+        if s.sampler == "bpl":
             c[:] = 1
         else:
             c[cand] = rng.integers(0, 2, cand.size).astype(np.int8)
-        if s.method == "paper":
+        if s.sampler == "paper":
             w = rng.normal(0.0, s.init_scale, d)
-        elif s.method == "authors":
+        elif s.sampler == "authors":
             # the authors' code draws a weight for every feature but keeps it only where c_j starts on: a feature
             # that starts off has weight 0 (and, with the reset, is switched on at 0)
             w = np.where(c == 1, rng.uniform(s.init_range[0], s.init_range[1], d), 0.0)
-        elif s.method == "bpl":
+        elif s.sampler == "bpl":
             w = self._bpl_initial_weights(rng)
         else:
             w = np.where(c == 1, prior.sample(rng), 0.0)
@@ -620,7 +665,7 @@ class Kernel:
         randoms = self.draw_randoms(rng, n)
         scratch = Scratch(np.empty(N), np.empty(N), np.empty(self.n_params), np.zeros(d, dtype=np.bool_), np.zeros(d),
                           np.zeros(2, np.int64))
-        schedule = Schedule(MODES[s.method], int(n), int(st.iteration), s.burn_in_, s.thin_,
+        schedule = Schedule(MODES[s.sampler], int(n), int(st.iteration), s.burn_in_, s.thin_,
                             ADAPT_EVERY if s.adapt_ else 0)
         _mcmc.advance(schedule, st.position, self.likelihood.kernel_bundle(), self._constraint_arrays, self._moves,
                       self._model, Randoms(*randoms), st.adaptation, out, st.best, st.counts, scratch)
@@ -658,19 +703,19 @@ def _copy_state(s: ChainState) -> ChainState:
 
 def build_kernel(likelihood: PreferenceLikelihood, settings: SamplerSettings | None = None, *,
                  constraints: ConstraintSet | None = None, min_penalty: Any = None, **overrides) -> Kernel:
-    """Bind settings to a likelihood: ``build_kernel(lik, method="bpl", sigma=0.5)``.
+    """Bind settings to a likelihood: ``build_kernel(lik, sampler="bpl", sigma=0.5)``.
 
     ``min_penalty`` (d,): the separation scales of ``identify`` (see :attr:`Kernel.min_penalty`)."""
     settings = SamplerSettings() if settings is None else settings
     if overrides:
-        settings = replace(settings, **overrides)
+        settings = settings.replace(**overrides)
     mp = None if min_penalty is None else tuple(float(x) if x is not None else float("nan") for x in min_penalty)
     kernel = Kernel(likelihood, settings, constraints, mp)
     if constraints is not None and constraints.dataset.n_trajectories != likelihood.mean_features.shape[0]:
         raise ValueError("constraints: built on a dataset with a different number of trajectories than the likelihood")
     kernel._cand  # validate candidates now  # noqa: B018
     s = kernel.settings
-    rest = (s.p_flip if s.method == "pbicrl" else 0.0) + kernel.p_theta_
+    rest = (s.p_flip if s.sampler == "pbicrl" else 0.0) + kernel.p_theta_
     if s.p_joint and rest + s.p_joint >= 1.0:
         raise ValueError(f"p_joint: the move probabilities must leave room for single-weight steps, got p_joint "
                          f"{s.p_joint} with {rest} for flips and parameter steps")
