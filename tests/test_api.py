@@ -242,7 +242,7 @@ def test_p_joint_is_a_setting_of_infer(tmp_path):
         np.testing.assert_array_equal(infer_from_config(ds, cfg, progress=False).penalty_weights,
                                       joint.penalty_weights)
     for bad in (-0.1, 1.0, float("nan"), "0.3", True):
-        with pytest.raises(ConfigError, match=r"p_joint: expected a number in \[0, 1\)"):
+        with pytest.raises(ConfigError, match=r"p_joint'?: expected (a number in \[0, 1\)|int or float)"):
             pbicrl.infer(ds, p_joint=bad, iterations=10, progress=False)
     with pytest.raises(ConfigError, match="p_joint: the joint weight step belongs to the pbicrl and bpl"):
         pbicrl.infer(ds, sampler="paper", p_joint=0.2, iterations=10, progress=False)

@@ -23,12 +23,30 @@ def dataset():
 
 
 def test_infer_takes_every_setting_with_the_configs_default():
+    from pbicrl.api import _settings
+
     params = inspect.signature(infer).parameters
-    assert set(FIELDS) <= set(params)
-    for name, default in FIELDS.items():
-        got = params[name].default
-        assert (list(got) if isinstance(got, tuple) else got) == default, name
-    assert not set(DEPRECATED_NAMES) & set(params)  # old names only through **deprecated
+    assert params["config"].default is None and params["overrides"].kind is inspect.Parameter.VAR_KEYWORD
+    assert not (set(FIELDS) | set(DEPRECATED_NAMES)) & set(params)  # settings only through InferConfig's names
+    for name, default in FIELDS.items():  # every setting is a keyword, checked and defaulted by InferConfig
+        assert _settings(None, {name: default}) == InferConfig(), name
+    cfg = InferConfig(sampler="bpl", chains=3)
+    assert _settings(cfg, {"chains": 2}) == InferConfig(sampler="bpl", chains=2)
+    assert _settings(cfg, {"chains": np.int64(2)}).chains == 2  # a NumPy integer is an integer
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("chains", 0, "key 'chains'"), ("iterations", "forever", "key 'iterations'"), ("beta", "1", "key 'beta'"),
+    ("p_joint", 1.5, "key 'p_joint'"),
+])
+def test_infer_checks_its_keywords_as_a_config_file_is_checked(dataset, key, value, message):
+    with pytest.raises(ConfigError, match=message):
+        infer(dataset, **{key: value}, progress=False)
+
+
+def test_infer_refuses_a_config_that_is_not_one(dataset):
+    with pytest.raises(TypeError, match="config: expected an InferConfig"):
+        infer(dataset, {"sampler": "bpl"}, progress=False)
 
 
 def test_the_command_line_options_are_config_settings():
@@ -107,7 +125,9 @@ def test_a_config_and_its_keyword_arguments_give_the_same_chains(dataset):
         warnings.simplefilter("ignore", PbicrlWarning)
         a = infer_from_config(dataset, cfg, progress=False)
         b = infer(dataset, **cfg.to_dict(), progress=False)
+        c = infer(dataset, cfg, progress=False)
     np.testing.assert_array_equal(a.penalty_weights, b.penalty_weights)
+    np.testing.assert_array_equal(a.penalty_weights, c.penalty_weights)
     assert a.settings["weight_prior"] == b.settings["weight_prior"]
 
 

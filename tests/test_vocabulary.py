@@ -83,3 +83,24 @@ def test_run_sbc_takes_chains_and_iterations():
     np.testing.assert_array_equal(new.ranks, old.ranks)
     with pytest.raises(TypeError, match="unexpected keyword argument 'n_draws'"):
         run_sbc(n_draws=3)
+
+
+def test_infer_parses_the_margins_once(monkeypatch):
+    import pbicrl
+    from pbicrl.inference.preferences import Margins
+
+    raw: list = []
+    parse = Margins.parse.__func__
+
+    def counting(cls, value, n_groups):
+        if value is not None and not isinstance(value, Margins):
+            raw.append(value)  # real parsing work: a list or array turned into a matrix
+        return parse(cls, value, n_groups)
+
+    monkeypatch.setattr(Margins, "parse", classmethod(counting))
+    prob = make_problem(6, labels="violations", violation_rate=0.4, seed=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PbicrlWarning)
+        post = pbicrl.infer(prob.dataset, margins=[0.5, 1.0], iterations=300, chains=1, jobs=1, progress=False)
+    assert raw == [[0.5, 1.0]]
+    assert post.extra["margins"] == {"m12": 0.5, "m13": 1.5, "m23": 1.0}
