@@ -43,7 +43,7 @@ FULL = 400_000
 
 def time_chain(lik: PreferenceLikelihood, method: str, n: int, prior: WeightPrior) -> tuple[float, int]:
     """Seconds for ``n`` iterations from a fixed initial state, and the likelihood evaluations they made."""
-    kernel = build_kernel(lik, method=method, n_iterations=max(n, 2), weight_prior=prior)
+    kernel = build_kernel(lik, sampler=method, iterations=max(n, 2), weight_prior=prior)
     state = kernel.init(0)
     kernel.run(np.random.default_rng(1), state, 2)  # compile outside the timing
     t = time.perf_counter()
@@ -146,7 +146,7 @@ def main() -> None:
           f"[-10000, 10000], pbicrl, {m:,} iterations x 2 chains")
     times, evals, states = [], 0, []
     for seed in (0, 1):
-        kernel = build_kernel(lik, method="pbicrl", n_iterations=m, weight_prior=wide)
+        kernel = build_kernel(lik, sampler="pbicrl", iterations=m, weight_prior=wide)
         state = kernel.init(seed)
         kernel.run(np.random.default_rng(seed), state, 2)
         buf = kernel.new_buffers(kernel.settings.n_draws)

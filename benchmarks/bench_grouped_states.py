@@ -42,7 +42,7 @@ def worker(states: list[list[float]], min_s: float) -> list[dict[str, Any]]:
 
     ds = make_wall_problem(10_000, length=500, seed=0).dataset
     lik = PreferenceLikelihood.from_dataset(ds, likelihood="grouped")
-    A = build_kernel(lik, constraints=ConstraintSet((AxisHalfspace(0, name="wall"),), ds), n_iterations=10)._param_arrays()
+    A = build_kernel(lik, constraints=ConstraintSet((AxisHalfspace(0, name="wall"),), ds), iterations=10)._param_arrays()
     kargs = lik.kernel_args()
     col = np.empty(ds.n_trajectories)
     out = []

@@ -35,7 +35,7 @@ def main() -> None:
     rows = []
     for method, kw in (("paper", {"f_s": 3, "sigma": 1.0}), ("pbicrl", {"sigma": 1.0})):
         for naive in (False, True):
-            kernel = build_kernel(lik, constraints=cs, method=method, n_iterations=n, sigma_theta=0.5,
+            kernel = build_kernel(lik, constraints=cs, sampler=method, iterations=n, sigma_theta=0.5,
                                   naive_counts=naive, **kw)
             state = kernel.init(0)
             kernel.run(np.random.default_rng(1), state, 10)  # compile outside the timing

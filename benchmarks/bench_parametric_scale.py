@@ -98,7 +98,7 @@ def main() -> None:
 
     lik = PreferenceLikelihood.from_dataset(ds, likelihood="grouped")
     cs = ConstraintSet((AxisHalfspace(0, name="wall"),), ds)
-    kern = build_kernel(lik, constraints=cs, n_iterations=10)
+    kern = build_kernel(lik, constraints=cs, iterations=10)
     A = kern._param_arrays()
     kargs = lik.kernel_args()
     col = np.empty(ds.n_trajectories)

@@ -35,7 +35,7 @@ from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.samplers import build_kernel
 from pbicrl.inference.synthetic import make_problem
 lik = PreferenceLikelihood.from_dataset(make_problem(5, labels="violations", violation_rate=0.5, seed=0).dataset)
-k = build_kernel(lik, n_iterations=10, burn_in=0)
+k = build_kernel(lik, iterations=10, burn_in=0)
 k.run(np.random.default_rng(0), k.init(0), 10)
 print(time.perf_counter() - t)
 """
@@ -68,7 +68,7 @@ def main() -> None:
     warm = compile_time(cold=False)
     rows = []
     for method in ("paper", "pbicrl"):
-        kernel = build_kernel(lik, method=method, n_iterations=n)
+        kernel = build_kernel(lik, sampler=method, iterations=n)
         state = kernel.init(0)
         kernel.run(np.random.default_rng(1), state, 10)  # compile outside the timing
         t = time.perf_counter()
@@ -79,7 +79,7 @@ def main() -> None:
                      "pair_evals_per_s": evals * pairs / dt, "us_per_iteration": dt / n * 1e6})
 
     m = args.numpy_iterations
-    k = build_kernel(lik, method="paper", n_iterations=m)
+    k = build_kernel(lik, sampler="paper", iterations=m)
     s = k.init(0)
     randoms = k.draw_randoms(np.random.default_rng(1), m)
     t = time.perf_counter()

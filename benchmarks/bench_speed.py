@@ -61,7 +61,7 @@ def _time_chain(lik: Any, method: str, n: int, reps: int) -> dict[str, float]:
     from pbicrl.inference.codes import C_EVALS
     from pbicrl.inference.samplers import build_kernel
 
-    kernel = build_kernel(lik, method=method, n_iterations=n)
+    kernel = build_kernel(lik, sampler=method, iterations=n)
     state = kernel.init(0)
     kernel.run(np.random.default_rng(1), state, 10)  # compile outside the timing
     wall, cpu = [], []
@@ -78,7 +78,7 @@ def _numpy_loop(lik: Any, m: int) -> dict[str, float]:
     from pbicrl.inference.samplers import build_kernel
     from pbicrl.inference.samplers.reference import reference_chain
 
-    k = build_kernel(lik, method="paper", n_iterations=m)
+    k = build_kernel(lik, sampler="paper", iterations=m)
     s = k.init(0)
     randoms = k.draw_randoms(np.random.default_rng(1), m)
     t, c = time.perf_counter(), time.process_time()
@@ -200,7 +200,7 @@ def _posterior_run(n: int, kind: str, iterations: int, chains: int, jobs: int, s
     t, c = time.perf_counter(), time.process_time()
     ch0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     burn = int(BURN_IN * iterations) if burn_in is None else int(burn_in)
-    post = sample(lik, n_chains=chains, n_iterations=iterations, burn_in=burn, seed=seed, n_jobs=jobs,
+    post = sample(lik, chains=chains, iterations=iterations, burn_in=burn, seed=seed, jobs=jobs,
                   progress=False, **settings)
     wall = time.perf_counter() - t
     ch1 = resource.getrusage(resource.RUSAGE_CHILDREN)

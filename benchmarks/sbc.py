@@ -108,7 +108,7 @@ def main() -> None:
                 print(f"[{design}] {r + 1}/{args.replicates} replicates, {time.perf_counter() - t0:.0f} s",
                       file=sys.stderr, flush=True)
 
-        res = run_sbc(problem, n_replicates=args.replicates, n_iterations=args.iterations, seed=args.seed,
+        res = run_sbc(problem, n_replicates=args.replicates, iterations=args.iterations, seed=args.seed,
                       diagnose=args.diagnose, progress=tick, p_joint=args.p_joint)
         out = res.to_dict()
         text = json.dumps(out, indent=2) + "\n"
