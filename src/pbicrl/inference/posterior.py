@@ -349,16 +349,9 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
 
     def save(self, out_dir: str | os.PathLike[str], *, overwrite: bool = False,
              extra_json: dict[str, Any] | None = None, inputs: Sequence[Any] = ()) -> Path:
-        """Write the run directory (``summary.json``, ``chains.npz``, ...) atomically: :func:`pbicrl.io.runs.save_run`.
-
-        Raises
-        ------
-        OutputExistsError
-            ``out_dir`` exists (a :class:`FileExistsError`; pass ``overwrite=True`` to replace a previous run).
-        OutputBusyError
-            Another process is writing ``out_dir`` at the same time.
-        FileExistsError
-            ``out_dir`` is a file, a symbolic link or a directory that is not a run (even with ``overwrite``).
+        """Write the run directory (``summary.json``, ``chains.npz``, ...) atomically: :func:`pbicrl.io.runs.save_run`,
+        which says what ``overwrite``, ``extra_json`` and ``inputs`` do and what it raises (``OutputExistsError``
+        for an existing ``out_dir`` without ``overwrite``, ``OutputBusyError`` while another process writes it).
         """
         from pbicrl.io.runs import save_run  # facade: the files are io's
 
