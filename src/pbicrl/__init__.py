@@ -2,10 +2,12 @@
 
 Architecture (one folder per stage)::
 
-    inference/   data -> constraints -> preferences -> likelihood (+ priors) -> samplers -> results
-    analysis/    identify, diagnostics, check, calibration, metrics, margins, suggest, export, plots
-    envs/ demonstrators/ baselines/ experiments/ io/ ui/   beside it
-    cli/         the command line on top; api.py, config.py, runs.py: the Python entry points
+    inference/   data -> constraints -> preferences -> likelihood (+ priors) -> samplers -> posterior
+                 (imports nothing from analysis/, io/ or cli/)
+    analysis/    identify, diagnostics, check, calibration, metrics, margins, suggest, export, plots, report
+    io/          run directories (load_run, save_run), CSV/Parquet and Minari import
+    envs/ demonstrators/ baselines/ experiments/ ui/   beside it
+    cli/         the command line on top; api.py, config.py: the Python entry points
 
 Quick start::
 
