@@ -33,6 +33,8 @@ def test_the_old_names_of_sampler_settings_work_with_a_warning():
         assert old.n_iterations == 500
     with pytest.warns(PbicrlWarning, match="'n_iterations' is deprecated"):
         assert old.replace(n_iterations=900).iterations == 900
+    with pytest.warns(PbicrlWarning, match="'method' is deprecated"):
+        assert dataclasses.replace(old, method="bpl") == SamplerSettings(sampler="bpl", iterations=500)
     with pytest.raises(ConfigError, match="'method': deprecated name of 'sampler', which is given too"):
         SamplerSettings(method="paper", sampler="bpl")
 

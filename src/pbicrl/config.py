@@ -249,8 +249,13 @@ def accept_old_names(cls: type, where: str) -> type:
     init = cls.__init__
     olds = {old: new for old, new in DEPRECATED_NAMES.items() if new in getattr(cls, "__dataclass_fields__", {})}
 
+    every = {f.name for f in fields(cls) if f.init}
+
     def __init__(self: Any, *args: Any, **kw: Any) -> None:
         if kw.keys() & olds.keys():
+            if every <= kw.keys():  # dataclasses.replace passes every field: the old name is the change asked for
+                for old in kw.keys() & olds.keys():
+                    kw.pop(olds[old])
             kw = canonical_names(kw, where=f"{where} argument", stacklevel=2)
         init(self, *args, **kw)
 
