@@ -193,8 +193,8 @@ def test_recovers_true_constraint_set_from_random_starts(violations_problem):
 
 
 def test_settings_validation():
-    with pytest.raises(ValueError, match="method"):
-        SamplerSettings(method="gibbs")
+    with pytest.raises(ValueError, match="sampler: unknown sampler 'gibbs'"):
+        SamplerSettings(sampler="gibbs")
     with pytest.raises(ValueError, match="burn_in"):
         SamplerSettings(n_iterations=10, burn_in=10)
     with pytest.raises(ValueError, match="sigma"):
