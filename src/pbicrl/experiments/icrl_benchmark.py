@@ -358,7 +358,8 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
                              "or delete it")
     else:
         write_json(cfg_path, {**identity, "pbicrl_version": __version__,
-                              **({"inferred_run": str(Path(inferred_run).resolve())} if inferred else {}),
+                              **({"inferred_run": str(Path(inferred_run).resolve()),  # type: ignore[arg-type]
+                                  "inferred_boundary_source": inferred[0].boundary_source} if inferred else {}),
                               "note": "ICRL benchmark reference policy; see pbicrl.experiments.icrl_benchmark"})
 
     lock = run / "lock"
