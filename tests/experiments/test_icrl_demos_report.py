@@ -56,12 +56,18 @@ def test_ranked_demos_label_by_behaviour_and_are_reproducible(pendulum_policies,
     side = json.loads((tmp_path / "d.json").read_text())
     assert side["command"] == "test" and side["policies"]["expert"]["steps"] == 128
     assert len(side["policies"]["expert"]["sha256"]) == 64
+    assert side["policies"]["handover"]["sha256"] == side["policies"]["unconstrained"]["sha256"]  # the default
     assert side["groups"]["2"]["violating_steps_max"] <= 2 and side["groups"]["3"]["violating_steps_min"] >= 4
     assert sum(e["kept"] for e in side["episodes"]) == 9
     assert side["file_sha256"] and side["file_bytes"] == (tmp_path / "d.npz").stat().st_size
     _, again = generate_ranked_demos("pendulum", expert, unconstrained, None, n_per_group=3, seed=5, rules=rules,
                                      max_episodes=400, command="test")
     assert again["episodes"] == side["episodes"]  # the same seed: the same episodes
+    _, other = generate_ranked_demos("pendulum", expert, unconstrained, None, handover=expert, n_per_group=3,
+                                     seed=5, rules=rules, max_episodes=400)
+    assert other["policies"]["handover"]["sha256"] == side["policies"]["expert"]["sha256"]
+    switch = [e for e in other["episodes"] if e["source"] == "switch"]
+    assert switch and switch != [e for e in side["episodes"] if e["source"] == "switch"][:len(switch)]
 
 
 def test_unfilled_groups_fail_and_write_nothing(pendulum_policies, tmp_path):
@@ -158,9 +164,11 @@ def test_report_on_synthetic_runs(tmp_path):
     assert {("ant", m) for m in ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")} <= missing
     assert res["in_progress"] == [{"task": "halfcheetah", "method": "ppo_lag_inferred", "seed": "seed0", "steps": 500}]
     md = (tmp_path / "out" / "report.md").read_text()
-    assert "**Missing rows**" in md and "halfcheetah / icl (no run directory)" in md
-    assert "halfcheetah / ppo_lag_inferred (no finished seed)" in md and "at 500 steps" in md
+    assert "**2 of 8 rows** (2 tasks x 4 methods)" in md and "**Missing rows**" in md
+    assert "| halfcheetah | PPO-Lagrangian, pbicrl inferred cost (no finished seed); ICL baseline (no run directory) |" in md
+    assert "at 500 steps" in md
     assert "| halfcheetah | PPO (no constraint) | 2 of 3 | 1,000 | 0.75 ± 0.35 | 32 ± 25 |" in md
+    assert "| halfcheetah | PPO-Lagrangian, true cost | 1 of 3 | 1,000 | 0.00 | 55 |" in md  # one seed: no sd
     pytest.importorskip("matplotlib")
     assert (tmp_path / "out" / "figures" / "icrl_halfcheetah.png").stat().st_size > 1000
     assert "![halfcheetah](figures/icrl_halfcheetah.png)" in md

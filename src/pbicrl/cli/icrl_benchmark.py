@@ -74,12 +74,13 @@ def _demos(args: argparse.Namespace) -> int:
     rules = DemoRules.for_task(args.task, args.brief_max_steps, args.through_min_steps)
     sources = SOURCES if args.sources is None else tuple(s.strip() for s in args.sources.split(",") if s.strip())
     parts = ["pbicrl", "benchmark", "icrl", "demos", "--task", args.task, "--expert", str(args.expert),
-             "--unconstrained", str(args.unconstrained), "--out", str(args.out), "--n-per-group",
+             "--unconstrained", str(args.unconstrained), "--handover", str(args.handover or args.unconstrained),
+             "--out", str(args.out), "--n-per-group",
              str(args.n_per_group), "--seed", str(args.seed), "--brief-max-steps", str(rules.brief_max_steps),
              "--through-min-steps", str(rules.through_min_steps), "--noise-sd", f"{args.noise_sd:g}",
              "--sources", ",".join(sources), "--max-episodes", str(args.max_episodes)]
     command = " ".join(shlex.quote(a) for a in parts)  # every setting spelled out, defaults included
-    _, rec = generate_ranked_demos(args.task, args.expert, args.unconstrained, args.out,
+    _, rec = generate_ranked_demos(args.task, args.expert, args.unconstrained, args.out, handover=args.handover,
                                    n_per_group=args.n_per_group, seed=args.seed, rules=rules, noise_sd=args.noise_sd,
                                    sources=sources, max_episodes=args.max_episodes, command=command,
                                    log=None if args.quiet else lambda s: print(s, file=sys.stderr, flush=True))
@@ -119,6 +120,10 @@ def add_subcommands(sub: Any) -> None:
     d.add_argument("--task", required=True, help="halfcheetah, ant, pendulum, walker, swimmer")
     d.add_argument("--expert", required=True, type=Path, help="checkpoint of the ppo_lag_true run (best.pt)")
     d.add_argument("--unconstrained", required=True, type=Path, help="checkpoint of the ppo run")
+    d.add_argument("--handover", type=Path, default=None,
+                   help="checkpoint the 'switch' source starts with before handing over to the expert near the "
+                        "wall (default: --unconstrained; an early checkpoint of the ppo run is slower, so the "
+                        "expert can turn it back after a brief crossing)")
     d.add_argument("--out", required=True, type=Path, help="the .npz to write (the record goes beside it, .json)")
     d.add_argument("--n-per-group", type=positive_int, default=100, help="episodes per group (default 100)")
     d.add_argument("--seed", type=nonneg_int, default=0, help="seed (default 0)")

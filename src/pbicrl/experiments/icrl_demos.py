@@ -24,10 +24,14 @@ The policies (``sources``), taken in turn, one episode each:
 ``unconstrained``
     the unconstrained PPO policy (``ppo``), stochastic (draws from its Gaussian);
 ``switch``
-    the unconstrained policy (its mean) until the post-step :math:`x` first comes within :math:`u` of the wall
-    (:math:`x < \text{wall} + u` for a wall behind, :math:`u \sim U(-1, 1)` per episode), then the expert (its
-    mean): it reaches the wall and is turned back by the expert, sometimes in time, sometimes after a brief
-    crossing, sometimes not at all (the expert then runs on through).
+    a ``handover`` policy (its mean; default the unconstrained checkpoint) until the state :math:`x` first comes
+    within :math:`u` of the wall (:math:`x < \text{wall} + u` for a wall behind, :math:`u \sim U(-1, 1)` per
+    episode), then the expert (its mean): it reaches the wall and is turned back by the expert, sometimes in
+    time, sometimes after a brief crossing, sometimes not at all (the expert then runs on through). On Blocked
+    Half-Cheetah the final unconstrained policy runs backwards so fast (and in a gait the expert never saw)
+    that the expert almost never turns it back (1 brief crossing in about 25 handovers, measured); an early
+    checkpoint of the same run (its ``best.pt``, 102,400 steps) is slower and is turned back after a brief
+    crossing in about a quarter of the handovers: pass it as ``handover``.
 
 A source stops being used once its last ``retire_after`` episodes all landed in full (or unused) groups; the
 generation stops when every group has ``n_per_group`` episodes (the first ones in generation order) and fails,
@@ -223,7 +227,8 @@ def _quantize(ep: dict[str, Any], dt: float, names: Sequence[str]) -> dict[str, 
 
 
 def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrained: str | os.PathLike[str],
-                          out: str | os.PathLike[str] | None = None, *, n_per_group: int = 100, seed: int = 0,
+                          out: str | os.PathLike[str] | None = None, *, handover: str | os.PathLike[str] | None = None,
+                          n_per_group: int = 100, seed: int = 0,
                           rules: DemoRules | None = None, noise_sd: float = 0.5,
                           sources: Sequence[str] = SOURCES, max_episodes: int = 3000, retire_after: int = 20,
                           quantize: bool = True, keep_actions: bool = False, command: str | None = None,
@@ -239,6 +244,8 @@ def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrain
     out : path, optional
         The ``.npz`` to write; the record goes beside it as ``<stem>.json``. Both are written only when every
         group is full.
+    handover : path, optional
+        The checkpoint the ``switch`` source starts with (default ``unconstrained``).
     n_per_group : int
         Episodes per group (100).
     seed : int
@@ -290,17 +297,20 @@ def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrain
         raise ValueError(f"rules: through_min_steps {rules.through_min_steps} exceeds the episode length "
                          f"{spec.max_episode_steps} of {spec.name}")
     say = log or (lambda _s: None)
-    lineage = {"expert": checkpoint_lineage(expert), "unconstrained": checkpoint_lineage(unconstrained)}
+    handover = unconstrained if handover is None else handover
+    lineage = {"expert": checkpoint_lineage(expert), "unconstrained": checkpoint_lineage(unconstrained),
+               "handover": checkpoint_lineage(handover)}
     behind = spec.side == "behind"
     e_mean = CheckpointPolicy(expert, deterministic=True)
     u_mean = CheckpointPolicy(unconstrained, deterministic=True)
+    h_mean = CheckpointPolicy(handover, deterministic=True)
     policies: dict[str, Any] = {
         "expert": e_mean,
         "expert_noise": _Noisy(e_mean, noise_sd, seed),
         "unconstrained": _Stochastic(CheckpointPolicy(unconstrained, deterministic=False), seed),
-        "switch": _Switch(u_mean, e_mean, spec.wall, behind, seed),
+        "switch": _Switch(h_mean, e_mean, spec.wall, behind, seed),
     }
-    for name, pol in (("expert", e_mean), ("unconstrained", u_mean)):
+    for name, pol in (("expert", e_mean), ("unconstrained", u_mean), ("handover", h_mean)):
         if pol.obs_dim != spec.obs_dim:
             raise ValueError(f"{name}: {pol.obs_dim}-dimensional observations; {spec.name} has {spec.obs_dim}")
     import gymnasium as gym  # noqa: F401  (the environment's dt)
@@ -377,8 +387,8 @@ def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrain
             "expert": "ppo_lag_true checkpoint, deterministic (mean action)",
             "expert_noise": f"ppo_lag_true mean action + N(0, {noise_sd:g}^2) noise",
             "unconstrained": "ppo checkpoint, stochastic (draws from its Gaussian)",
-            "switch": "ppo mean action until the state first comes within u ~ U(-1, 1) of the wall, then the "
-                      "ppo_lag_true mean action",
+            "switch": "handover checkpoint's mean action until the state first comes within u ~ U(-1, 1) of "
+                      "the wall, then the ppo_lag_true mean action",
             "used": srcs},
         "policies": lineage, "quantize": bool(quantize), "keep_actions": bool(keep_actions),
         "episodes_generated": len(episodes),

@@ -101,10 +101,10 @@ def _mean_sd(vals: Sequence[float]) -> tuple[float, float]:
     return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
 
 
-def _fmt(ms: tuple[float, float] | None, digits: int) -> str:
+def _fmt(ms: tuple[float, float] | None, digits: int, n: int = 2) -> str:
     if ms is None:
         return "-"
-    return f"{ms[0]:.{digits}f} ± {ms[1]:.{digits}f}"
+    return f"{ms[0]:.{digits}f}" if n < 2 else f"{ms[0]:.{digits}f} ± {ms[1]:.{digits}f}"  # no sd of one seed
 
 
 def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
@@ -197,11 +197,18 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
              "Per seed: violation rate (share of episodes with at least one step beyond the wall) and feasible "
              "cumulative reward (reward before the first violating step) over the **evaluation episodes of the "
              "stochastic policy** at the run's last evaluation (10 episodes, 100 for the pendulum; true cost). "
-             "Mean ± sd over the finished seeds. `train` columns: the same metrics over the last 100 training "
+             "Mean ± sd over the finished seeds (the value alone for one seed). `train` columns: the same metrics over the last 100 training "
              "episodes (the benchmark's own plotting window).", ""]
+    n_rows = len(names) * len(methods)
+    lines += [f"**{n_rows - len(res['missing'])} of {n_rows} rows** ({len(names)} tasks x {len(methods)} methods) have "
+              f"at least one finished seed; {seeds_planned} seeds are planned per row.", ""]
     if res["missing"]:
-        lines += ["**Missing rows** (not in the table): " + "; ".join(
-            f"{m['task']} / {m['method']} ({m['why']})" for m in res["missing"]) + ".", ""]
+        lines += ["**Missing rows** (not in the table):", "", "| task | missing |", "|---|---|"]
+        for t in names:
+            miss = [m for m in res["missing"] if m["task"] == t]
+            if miss:
+                lines.append(f"| {t} | " + "; ".join(f"{_LABELS[m['method']]} ({m['why']})" for m in miss) + " |")
+        lines.append("")
     else:
         lines += ["No row is missing.", ""]
     if res["in_progress"]:
@@ -216,9 +223,11 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
                 continue
             steps = a["steps"][0] if a.get("steps") else math.nan
             wall = a.get("wall_s")
-            lines.append(f"| {t} | {_LABELS[m]} | {a['seeds_done']} of {seeds_planned} | {steps:,.0f} | "
-                         f"{_fmt(a['violation_rate'], 2)} | {_fmt(a['feasible_reward'], 0)} | {_fmt(a['reward'], 0)} | "
-                         f"{_fmt(a.get('train_violation_rate'), 2)} | {_fmt(a.get('train_feasible_reward'), 0)} | "
+            n = a["seeds_done"]
+            lines.append(f"| {t} | {_LABELS[m]} | {n} of {seeds_planned} | {steps:,.0f} | "
+                         f"{_fmt(a['violation_rate'], 2, n)} | {_fmt(a['feasible_reward'], 0, n)} | "
+                         f"{_fmt(a['reward'], 0, n)} | {_fmt(a.get('train_violation_rate'), 2, n)} | "
+                         f"{_fmt(a.get('train_feasible_reward'), 0, n)} | "
                          f"{'-' if not wall else f'{wall[0] / 3600:.2f}'} |")
     thr = [(t, res["tasks"][t]["ppo_lag_inferred"]) for t in names if "ppo_lag_inferred" in res["tasks"][t]
            and res["tasks"][t]["ppo_lag_inferred"].get("inferred_boundary")]
@@ -256,11 +265,11 @@ def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
         for m, a in pts:
             (vx, vs), (fx, fs) = a["violation_rate"], a["feasible_reward"]
             ax.errorbar([vx], [fx], xerr=[vs], yerr=[fs], fmt="o", capsize=3,
-                        label=f"{_LABELS[m]} ({a['seeds_done']} seeds)")
+                        label=f"{_LABELS[m]} ({a['seeds_done']} seed{'s' if a['seeds_done'] > 1 else ''})")
         ax.set_xlabel("constraint violation rate")
         ax.set_ylabel("feasible cumulative reward")
         ax.set_xlim(-0.05, 1.05)
-        ax.set_title(t)
+        ax.set_title(f"{t}: mean ± sd over seeds")
         ax.legend(fontsize=7)
         fig.tight_layout()
         name = f"icrl_{t}.png"
