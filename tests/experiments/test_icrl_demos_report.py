@@ -82,38 +82,48 @@ def test_unfilled_groups_fail_and_write_nothing(pendulum_policies, tmp_path):
         generate_ranked_demos("pendulum", tmp_path / "none.pt", unconstrained, None)
 
 
-def _write_run(path, names, ind, wp, params, constraints):
+def _write_run(path, names, ind, wp, params, constraints, data=None):
     path.mkdir(parents=True)
     np.savez(path / "chains.npz", indicators=np.asarray(ind, dtype=np.int8)[None],
              penalty_weights=np.asarray(wp, dtype=np.float64)[None], log_likelihood=np.zeros((1, len(ind))),
              feature_names=np.array(names), parameters=np.asarray(params, dtype=np.float64)[None],
              parameter_names=np.array(["wall.threshold"]))
-    (path / "summary.json").write_text(json.dumps({"schema_version": 1, "method": "pbicrl",
-                                                   "feature_names": list(names),
-                                                   "settings": {"constraints": constraints}}))
+    summary = {"schema_version": 1, "method": "pbicrl", "feature_names": list(names),
+               "settings": {"constraints": constraints}}
+    if data is not None:
+        summary["extra"] = {"data": {"path": str(data)}}
+    (path / "summary.json").write_text(json.dumps(summary))
     return path
 
 
 def test_ppo_lag_inferred_trains_on_the_conservative_boundary(tmp_path):
-    from pbicrl.envs import register_envs
-    from pbicrl.envs.inferred_cost import InferredConstraintCost
     import gymnasium as gym
 
+    from pbicrl.envs import register_envs
+    from pbicrl.envs.inferred_cost import InferredConstraintCost
+    from pbicrl.inference.data import Dataset
+
     cons = [{"family": "axis_halfspace", "dims": [0], "name": "wall", "direction": "<="}]
-    run = _write_run(tmp_path / "inf", ("bias_reward", "wall"), [[0, 1]] * 3, [[0, -1.0]] * 3,
-                     [[-0.03], [-0.02], [-0.005]], cons)
+    # the good demonstrations reach x = -0.004; a bad one goes to -0.03 (pendulum wall: x < -0.015)
+    x = np.array([0.0, -0.004, 0.002, 0.0, -0.02, -0.03])
+    Dataset(features=np.ones((6, 1)), offsets=np.array([0, 3, 6]), group=np.array([1, 2]), states=x[:, None],
+            feature_names=("bias_reward",)).save(tmp_path / "demos.npz")
+    args = (("bias_reward", "wall"), [[0, 1]] * 3, [[0, -1.0]] * 3, [[-0.03], [-0.02], [0.005]], cons)
+    run = _write_run(tmp_path / "inf", *args, data=tmp_path / "demos.npz")
     register_envs()
     icc = InferredConstraintCost(gym.make("pbicrl/BiasedPendulum-v0"), run)  # the task's own features and x
     assert icc.mode == "conservative"
-    assert icc.conservative_location["wall"][0] == -0.005  # the edge nearest the safe side (no dataset)
-    np.testing.assert_array_equal(icc.costs(states=[[-0.006], [-0.004]]), [1.0, 0.0])
+    edge = float(np.nextafter(-0.004, -1))
+    assert icc.conservative_location["wall"][0] == edge  # just beyond the good demonstrations' reach
+    np.testing.assert_array_equal(icc.costs(states=[[-0.005], [-0.004]]), [1.0, 0.0])
 
     out = tmp_path / "runs"
     d = train_policy("pendulum", "ppo_lag_inferred", 0, out, 128, config_overrides=SMALL, eval_every=1,
                      eval_episodes=1, log=None, inferred_run=run)
     cfg = json.loads((d / "config.json").read_text())
     ic = cfg["inferred_cost"]
-    assert ic["mode"] == "conservative" and ic["boundary"] == {"wall": [-0.005]} and len(ic["summary_sha256"]) == 64
+    assert ic["mode"] == "conservative" and ic["boundary"] == {"wall": [edge]} and len(ic["summary_sha256"]) == 64
+    assert "good demonstrations" in cfg["inferred_boundary_source"]["wall"]
     assert (d / "done.json").exists()
     rows = [json.loads(s) for s in (d / "curve.jsonl").read_text().splitlines()]
     assert all(r["constraint"] == int(r["x_min"] < -0.015) for r in rows)  # the metrics keep the true wall
@@ -124,6 +134,11 @@ def test_ppo_lag_inferred_trains_on_the_conservative_boundary(tmp_path):
     with pytest.raises(ValueError, match="other settings.*inferred_cost"):
         train_policy("pendulum", "ppo_lag_inferred", 0, out, 256, config_overrides=SMALL, log=None,
                      inferred_run=run)
+    # without the run's dataset the boundary would be the posterior's highest draw (0.005: the start): refused
+    lost = _write_run(tmp_path / "lost", *args, data=tmp_path / "gone.npz")
+    with pytest.raises(ValueError, match=r"not from the good demonstrations \(boundary \{'wall': 0.005\}\)"):
+        train_policy("pendulum", "ppo_lag_inferred", 2, out, 128, log=None, inferred_run=lost)
+    assert not (out / "pendulum" / "ppo_lag_inferred" / "seed2").exists()
     with pytest.raises(ValueError, match="inferred_run: method ppo_lag_inferred needs"):
         train_policy("pendulum", "ppo_lag_inferred", 1, out, 128, log=None)
     with pytest.raises(ValueError, match="inferred_run: only for"):

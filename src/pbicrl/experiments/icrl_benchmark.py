@@ -14,7 +14,9 @@ the last checkpoint. Command line: ``python -m pbicrl.cli.icrl_benchmark --out D
     The same PPO-Lagrangian (same settings, budget 0) whose cost is pbicrl's inferred constraint:
     :class:`pbicrl.envs.inferred_cost.InferredConstraintCost` of a ``pbicrl infer`` run directory
     (``inferred_run``), in ``conservative`` mode by default (``cost_mode``), evaluated on the state each step
-    reached (the post-step x and the nominal features). The true cost is still what ``curve.jsonl`` and
+    reached (the post-step x and the nominal features); in ``conservative`` mode a wall's boundary must come from
+    the good demonstrations of the run's own dataset (else an error: the posterior's own extreme draw can put
+    the wall on the start). The true cost is still what ``curve.jsonl`` and
     ``eval.jsonl`` record (the benchmark's metrics); the inferred cost only trains. The run's identity includes
     the SHA-256 of the inference run's ``summary.json``, the mode and the resulting boundaries, so a rerun with
     another posterior is refused.
@@ -483,6 +485,12 @@ def _inferred_cost(task: str, method: str, run_dir: str | os.PathLike[str] | Non
         icc = InferredConstraintCost(env, run_dir, mode=mode)
     finally:
         env.close()
+    fallback = {k: v for k, v in icc.boundary_source.items() if not v.startswith("the good demonstrations")}
+    if fallback:  # the posterior's own extreme draw can put the wall on the start (measured: x <= 0.41 on HC)
+        where = {k: float(icc.conservative_location[k][0]) for k in fallback}
+        raise ValueError(f"inferred_run: the conservative boundary of {', '.join(fallback)} would come from "
+                         f"{next(iter(fallback.values()))}, not from the good demonstrations (boundary {where}); "
+                         f"run pbicrl infer again where its dataset can be read, or choose another cost_mode")
     ident = {"summary_sha256": _file_sha256(summary), "mode": mode,
              "used": [icc.feature_names[j] for j in icc.used],
              "boundary": {k: [float(v) for v in np.ravel(b)] for k, b in icc.conservative_location.items()},
