@@ -12,7 +12,11 @@ pytest.importorskip("gymnasium")
 pytest.importorskip("mujoco")
 
 from pbicrl.experiments.icrl_benchmark import train_policy  # noqa: E402
-from pbicrl.experiments.icrl_demos import DemoRules, classify_episode, generate_ranked_demos  # noqa: E402
+from pbicrl.experiments.icrl_demos import (  # noqa: E402
+    DemoRules,
+    classify_episode,
+    generate_ranked_demos,
+)
 from pbicrl.experiments.icrl_report import build_report, seed_metrics  # noqa: E402
 
 SMALL = dict(n_envs=2, n_steps=64, minibatch_size=64, n_epochs=1)
@@ -44,8 +48,8 @@ def test_ranked_demos_label_by_behaviour_and_are_reproducible(pendulum_policies,
 
     expert, unconstrained = pendulum_policies
     rules = DemoRules(2, 4)
-    ds, rec = generate_ranked_demos("pendulum", expert, unconstrained, tmp_path / "d.npz", n_per_group=3, seed=5,
-                                    rules=rules, max_episodes=400, command="test")
+    generate_ranked_demos("pendulum", expert, unconstrained, tmp_path / "d.npz", n_per_group=3, seed=5, rules=rules,
+                          max_episodes=400, command="test")
     back = load_dataset(tmp_path / "d.npz")
     assert list(back.group) == [1, 1, 1, 2, 2, 2, 3, 3, 3] and back.actions is None
     assert back.states.shape[1] == 1 and back.feature_names == ("bias_reward",)
@@ -211,3 +215,25 @@ def test_cli_benchmark_icrl(tmp_path, capsys):
     assert "missing rows: 3" in capsys.readouterr().out
     assert main(["benchmark", "icrl", "train", "--out", str(runs), "--run", "pendulum:ppo_lag_inferred:0:100"]) == 2
     assert "--inferred-run" in capsys.readouterr().err
+
+
+def test_shipped_halfcheetah_demos_match_their_record_and_rules():
+    import hashlib
+
+    import pbicrl
+    from pbicrl.inference.data import shipped_dir
+
+    path = shipped_dir() / "icrl_halfcheetah.npz"
+    rec = json.loads(path.with_suffix(".json").read_text())
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == rec["file_sha256"]
+    ds = pbicrl.load_dataset("icrl_halfcheetah")
+    assert ds.env_id == "pbicrl/BlockedHalfCheetah-v0" and ds.feature_names == ("speed", "action_sq_norm")
+    assert list(np.bincount(ds.group)[1:]) == [100, 100, 100]
+    rules = DemoRules(rec["rules"]["brief_max_steps"], rec["rules"]["through_min_steps"])
+    off, x = ds.offsets, ds.states[:, 0]
+    n_v = np.array([np.sum(x[off[i]:off[i + 1]] < -3.0) for i in range(ds.n_trajectories)])
+    assert [classify_episode(n, rules) for n in n_v] == list(ds.group)  # labelled by what each episode did
+    assert n_v[ds.group == 3].min() >= 500  # group 3 really runs through the wall
+    dx = np.abs(np.diff(x))  # the stored speed is |dx| / dt (dt 0.05) of the stored x, within an episode
+    inner = np.setdiff1d(np.arange(1, len(x)), off[1:-1])
+    np.testing.assert_array_equal(ds.features[inner, 0], dx[inner - 1] / 0.05)

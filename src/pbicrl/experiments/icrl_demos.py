@@ -108,7 +108,7 @@ class DemoRules:
 
         T = icrl_task(task).max_episode_steps
         return cls(int(brief_max_steps) if brief_max_steps is not None else max(1, T // 10),
-                   int(through_min_steps) if through_min_steps is not None else int(math.ceil(0.5 * T)))
+                   int(through_min_steps) if through_min_steps is not None else math.ceil(0.5 * T))
 
 
 def classify_episode(n_violating: int, rules: DemoRules) -> int:
@@ -279,7 +279,11 @@ def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrain
     from pbicrl import __version__
     from pbicrl._atomic import write_json
     from pbicrl.envs.icrl_benchmark import icrl_task
-    from pbicrl.experiments.icrl_benchmark import CheckpointPolicy, demonstrations_dataset, rollout_episodes
+    from pbicrl.experiments.icrl_benchmark import (
+        CheckpointPolicy,
+        demonstrations_dataset,
+        rollout_episodes,
+    )
 
     spec = icrl_task(task)
     for name, v, low in (("n_per_group", n_per_group, 1), ("seed", seed, 0), ("max_episodes", max_episodes, 1),
