@@ -53,7 +53,7 @@ __all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool"
 # Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
 _CHUNK = 20_000
 _progress_counter: Any = None  # set in workers (inherited through fork) for the progress bar
-COMPILE_NOTE = "pbicrl: compiling the sampler (first run only, ~15 s)..."
+COMPILE_NOTE = "pbicrl: compiling the sampler (first run only: about a minute, cached afterwards)..."
 """What :func:`sample` (with progress) and a sweep's bar print once before a run compiles the sampler."""
 _runs_counter: RunsCounter | None = None  # a sweep's, in the process that runs its tasks (set_runs_counter)
 _current_run: _RunShare | None = None  # the run sample() is doing in this process, counted in _runs_counter
