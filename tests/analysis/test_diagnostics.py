@@ -45,19 +45,39 @@ def run_dir(small_post, tmp_path_factory):
     return post.save(d / "run")
 
 
-def test_numpy_fallback_names_the_extra(monkeypatch):
+def test_default_backend_needs_no_arviz_and_explicit_arviz_names_the_extra(monkeypatch):
     def missing():
         raise ImportError("no arviz: pip install \"pbicrl[diag]\"")
 
     monkeypatch.setattr(diagnostics, "require_arviz", missing)
     rng = np.random.default_rng(0)
     d = diagnostics.compute(fake_posterior(rng.normal(size=(4, 500, 2))), cache=False)
-    assert d.backend == "numpy"
-    assert 'pip install "pbicrl[diag]"' in d.message
-    assert all(v["ess_bulk"] is None and v["rhat"] is not None for v in d.values["penalty"].values())
-    assert 'pbicrl[diag]' in d.table()
+    assert d.backend == "pbicrl" and d.message is None
+    assert all(v["ess_bulk"] > 1000 and v["ess_tail"] > 500 and v["rhat"] < 1.01 for v in d.values["penalty"].values())
     with pytest.raises(ImportError, match="pbicrl"):
         diagnostics.compute(fake_posterior(rng.normal(size=(4, 500, 2))), backend="arviz", cache=False)
+    d = diagnostics.compute(fake_posterior(rng.normal(size=(4, 500, 2))), backend="numpy", cache=False)
+    assert d.backend == "numpy" and all(v["ess_bulk"] is None for v in d.values["penalty"].values())
+    assert "classic split R-hat" in d.footer()
+
+
+def test_default_backend_equals_arviz():
+    pytest.importorskip("arviz")
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(4, 700, 2)).cumsum(axis=1) * 0.05 + rng.normal(size=(4, 700, 2))
+    ind = (rng.random((4, 700, 2)) < 0.7).astype(np.int8)
+    ours = diagnostics.compute(fake_posterior(x, ind), cache=False)
+    theirs = diagnostics.compute(fake_posterior(x, ind), backend="arviz", cache=False)
+    assert theirs.backend.startswith("arviz")
+    for kind in ("penalty", "indicator", "log_likelihood"):
+        for name, v in theirs.values[kind].items():
+            for stat, ref in v.items():
+                if kind == "indicator" and stat == "ess_tail":
+                    # a 0/1 draw's 95% quantile is 1, so 1[x >= q95] is constant: ArviZ counts that tail as n draws,
+                    # pbicrl leaves it out (only the other tail measures anything)
+                    assert ours.values[kind][name][stat] >= 0.9 * ref
+                    continue
+                assert ours.values[kind][name][stat] == pytest.approx(ref, rel=1e-8), (kind, name, stat)
 
 
 def test_well_mixed_chains_pass_and_disagreeing_chains_warn():
@@ -66,7 +86,7 @@ def test_well_mixed_chains_pass_and_disagreeing_chains_warn():
     x = rng.normal(size=(4, 1000, 2))
     x[1, :, 1] += 3.0  # chain 1 sits elsewhere for feature x1
     d = diagnostics.compute(fake_posterior(x), cache=False)
-    assert d.backend.startswith("arviz")
+    assert d.backend == "pbicrl"
     good, bad = d.values["penalty"]["x0"], d.values["penalty"]["x1"]
     assert good["rhat"] < 1.01 and good["ess_bulk"] > 2000 and good["ess_tail"] > 1000
     assert bad["rhat"] > 1.2

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -325,3 +326,40 @@ def test_ray_gives_the_serial_numbers(tmp_path, data_path):
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == ["ran"] * 3
     _assert_same(_numbers(tmp_path / "serial", tasks), _numbers(tmp_path / "ray", tasks))
     assert not _leftovers(tmp_path / "ray")
+
+
+# ------------------------------------------------------------------------------------------------ progress
+def _frames(err: str) -> list[str]:
+    return [f for f in re.split(r"[\r\n]", err) if f.strip()]
+
+
+@pytest.mark.parametrize("executor", ["serial", "local", pytest.param("spawn", marks=pytest.mark.slow)])
+def test_the_sweep_bar_shows_progress_inside_the_running_runs(tmp_path, capsys, monkeypatch, executor):
+    """Issue 30 item 13: the bar sat at 0/N through each run; it now shows the runs' sampler iterations."""
+    from pbicrl.inference.samplers.driver import RunsCounter
+
+    monkeypatch.setattr(RunsCounter, "interval", 0.05)  # the test's runs are short
+    data = make_problem(4, seed=2).dataset.save(tmp_path / "small.npz")
+    tasks = [Task("infer", {"data": str(data), "iterations": 40_000, "chains": 1, "burn_in": 1000, "seed": s})
+             for s in (0, 1)]  # two chunks of 20,000: one report inside each run
+    ex = {"serial": SerialExecutor(), "local": LocalExecutor(2), "spawn": LocalExecutor(2, start_method="spawn")}
+    res = run_tasks(tasks, tmp_path / "out", ex[executor], progress=True, manifest=False)
+    assert res.ok
+    frames = _frames(capsys.readouterr().err)
+    # while no run had finished, the bar showed iterations done inside the runs, strictly between 0 and all
+    inside = [re.search(r"\| 0/2 \[.*in runs (\S+)/(\S+) it \((\d+)%\)", f) for f in frames]
+    shares = [(m.group(1), m.group(2), int(m.group(3))) for m in inside if m]
+    planned = "40.0k" if executor == "serial" else "80.0k"  # one run at a time, or both at once
+    assert any(p == planned and 0 < pct < 100 for _, p, pct in shares), frames
+    assert "in runs" not in frames[-1]  # no run in progress at the end
+
+
+def test_the_sweep_says_once_that_the_runs_compile_the_sampler(tmp_path, data_path, capsys, monkeypatch):
+    from pbicrl.inference.samplers import driver
+
+    monkeypatch.setattr(driver, "sampler_needs_compiling", lambda: True)  # as on a cold Numba cache
+    tasks = [Task("infer", {"data": str(data_path), "iterations": 2000, "chains": 1, "seed": s}) for s in (0, 1)]
+    assert run_tasks(tasks, tmp_path / "out", "serial", progress=True, manifest=False).ok
+    err = capsys.readouterr().err
+    assert err.count(driver.COMPILE_NOTE) == 1  # printed once, not per run
+    assert "compiling the sampler (1 run)" in err  # the bar says so until the run's first iterations

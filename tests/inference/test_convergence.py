@@ -68,3 +68,15 @@ def test_reported_quantities_cover_indicators_conditionals_and_loglik():
     conv = check_convergence(q)
     assert conv.converged  # independent draws
     assert conv.to_dict()["quantities"]["P(c=1) a"]["rhat"] is None  # constant: converged by definition
+
+
+def test_average_ranks_equal_scipy_rankdata():
+    from scipy.stats import rankdata
+
+    from pbicrl.inference.convergence import _average_ranks
+
+    rng = np.random.default_rng(11)
+    cases = [rng.normal(size=(4, 300)), rng.integers(0, 3, size=(4, 80)).astype(float), np.zeros((2, 6)),
+             np.array([[1.0, np.inf, -np.inf, 2.0, 1.0]])]
+    for x in cases:
+        np.testing.assert_array_equal(_average_ranks(x), rankdata(x, method="average").reshape(x.shape))

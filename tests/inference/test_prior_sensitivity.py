@@ -107,3 +107,19 @@ def test_required_feature_switched_off_is_warned_about():
     w = [m for m in post.warnings() if "require" in m and "< 0.5" in m]
     assert len(w) == 1 and w[0].startswith("b:") and "56.25" in w[0] and "0.200" in w[0]
     assert "warning: b: the rankings require" in post.table(width=400)
+
+
+def test_standard_distributions_equal_scipy_stats():
+    from scipy import stats
+
+    from pbicrl.inference.sensitivity import _standard_dist
+
+    z = np.linspace(-40.0, 40.0, 161)
+    u = np.linspace(1e-4, 1 - 1e-4, 77)
+    for kind, spec, ref in (("normal", {}, stats.norm), ("student_t", {"df": 3.0}, stats.t(3.0)),
+                            ("cauchy", {}, stats.t(1.0))):
+        d = _standard_dist(kind, spec)
+        np.testing.assert_allclose(d.cdf(z), ref.cdf(z), rtol=1e-12, atol=1e-300)
+        np.testing.assert_allclose(d.logpdf(z), ref.logpdf(z), rtol=1e-12)
+        np.testing.assert_allclose(d.ppf(u), ref.ppf(u), rtol=1e-10)
+    assert _standard_dist("student_t", {"df": -1}) is None and _standard_dist("laplace", {}) is None

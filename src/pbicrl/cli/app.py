@@ -399,7 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
 _EXTENSIONS: dict[str, tuple[str, ...]] = {
     "pbicrl.cli.sweep": ("sweep",), "pbicrl.cli.reproduce": ("reproduce",),
     "pbicrl.cli.posterior": ("diagnose", "plot", "export", "import"), "pbicrl.cli.envs": ("envs",),
-    "pbicrl.cli.train_safe": ("train-safe",), "pbicrl.cli.label": ("label", "pool", "suggest"),
+    "pbicrl.cli.train_safe": ("train-safe",), "pbicrl.cli.icrl_benchmark": ("benchmark",), "pbicrl.cli.label": ("label", "pool", "suggest"),
 }
 
 # Top-level modules of optional dependencies -> the extra that installs them (pyproject.toml).

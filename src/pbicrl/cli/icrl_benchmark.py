@@ -1,14 +1,28 @@
-"""``python -m pbicrl.cli.icrl_benchmark``: train the ICRL benchmark's reference policies one after another
-(:func:`pbicrl.experiments.icrl_benchmark.train_policy`)."""
+"""The ICRL benchmark's command line.
+
+``pbicrl benchmark icrl train|demos|report`` (mounted on ``pbicrl``), and ``python -m pbicrl.cli.icrl_benchmark``
+(the same as ``pbicrl benchmark icrl train``, kept for the running trainings):
+
+``train --out DIR --run TASK:METHOD:SEED:STEPS [--run ...] [--inferred-run RUN] [--cost-mode MODE]``
+    train the listed runs one after another (:func:`pbicrl.experiments.icrl_benchmark.train_policy`; each
+    resumable, finished ones skipped);
+``demos --task TASK --expert CKPT --unconstrained CKPT --out FILE.npz``
+    ranked demonstrations (:func:`pbicrl.experiments.icrl_demos.generate_ranked_demos`);
+``report --runs DIR --out DIR``
+    the benchmark's table and figures (:func:`pbicrl.experiments.icrl_report.build_report`).
+"""
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
-__all__ = ["main"]
+__all__ = ["add_subcommands", "main"]
 
 
 def _parse_job(text: str) -> tuple[str, str, int, int]:
@@ -22,29 +36,129 @@ def _parse_job(text: str) -> tuple[str, str, int, int]:
         raise ValueError(f"--run: SEED and STEPS must be integers in {text!r}") from None
 
 
+def _train_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, help="root directory of the runs")
+    p.add_argument("--run", action="append", required=True, metavar="TASK:METHOD:SEED:STEPS",
+                   help="a run to train (repeatable; trained in order), e.g. halfcheetah:ppo_lag_true:0:3000000; "
+                        "METHOD: ppo, ppo_lag_true, ppo_lag_inferred")
+    p.add_argument("--checkpoint-every", type=int, default=2, help="updates between checkpoints (default 2)")
+    p.add_argument("--eval-every", type=int, default=10, help="updates between evaluations (default 10)")
+    p.add_argument("--inferred-run", type=Path, default=None,
+                   help="ppo_lag_inferred: the run directory of pbicrl infer whose constraint is the cost")
+    p.add_argument("--cost-mode", default="conservative",
+                   help="ppo_lag_inferred: how the posterior becomes a cost (default conservative; see "
+                        "pbicrl.envs.inferred_cost)")
+
+
+def _train(args: argparse.Namespace) -> int:
+    from pbicrl.experiments.icrl_benchmark import expert_config, train_policy
+
+    jobs = [_parse_job(j) for j in args.run]
+    for task, method, seed, steps in jobs:
+        expert_config(task, method)  # fail on a bad task or method before hours of training
+        if method == "ppo_lag_inferred" and args.inferred_run is None:
+            raise ValueError("--inferred-run: method ppo_lag_inferred needs the run directory of pbicrl infer")
+    if args.inferred_run is not None and not any(m == "ppo_lag_inferred" for _, m, _, _ in jobs):
+        raise ValueError("--inferred-run: only for method ppo_lag_inferred")
+    for task, method, seed, steps in jobs:
+        inferred = args.inferred_run if method == "ppo_lag_inferred" else None
+        train_policy(task, method, seed, args.out, steps, checkpoint_every=args.checkpoint_every,
+                     eval_every=args.eval_every, inferred_run=inferred, cost_mode=args.cost_mode,
+                     log=lambda s: print(time.strftime("%H:%M:%S"), s, flush=True))
+    return 0
+
+
+def _demos(args: argparse.Namespace) -> int:
+    from pbicrl.experiments.icrl_demos import SOURCES, DemoRules, generate_ranked_demos
+
+    rules = DemoRules.for_task(args.task, args.brief_max_steps, args.through_min_steps)
+    sources = SOURCES if args.sources is None else tuple(s.strip() for s in args.sources.split(",") if s.strip())
+    parts = ["pbicrl", "benchmark", "icrl", "demos", "--task", args.task, "--expert", str(args.expert),
+             "--unconstrained", str(args.unconstrained), "--handover", str(args.handover or args.unconstrained),
+             "--out", str(args.out), "--n-per-group",
+             str(args.n_per_group), "--seed", str(args.seed), "--brief-max-steps", str(rules.brief_max_steps),
+             "--through-min-steps", str(rules.through_min_steps), "--noise-sd", f"{args.noise_sd:g}",
+             "--sources", ",".join(sources), "--max-episodes", str(args.max_episodes)]
+    command = " ".join(shlex.quote(a) for a in parts)  # every setting spelled out, defaults included
+    _, rec = generate_ranked_demos(args.task, args.expert, args.unconstrained, args.out, handover=args.handover,
+                                   n_per_group=args.n_per_group, seed=args.seed, rules=rules, noise_sd=args.noise_sd,
+                                   sources=sources, max_episodes=args.max_episodes, command=command,
+                                   log=None if args.quiet else lambda s: print(s, file=sys.stderr, flush=True))
+    g = rec["groups"]
+    print(f"wrote {args.out} ({rec['file_bytes'] / 2**20:.2f} MiB): groups {g['1']['n']}, {g['2']['n']}, {g['3']['n']} "
+          f"from {rec['episodes_generated']} episodes")
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from pbicrl.experiments.icrl_report import build_report
+
+    tasks = None if args.tasks is None else [t.strip() for t in args.tasks.split(",") if t.strip()]
+    res = build_report(args.runs, args.out, tasks=tasks, seeds_planned=args.seeds, figures=not args.no_figures)
+    print(f"wrote {Path(args.out) / 'report.md'}; missing rows: {len(res['missing'])}, runs in progress: "
+          f"{len(res['in_progress'])}")
+    return 0
+
+
+def add_subcommands(sub: Any) -> None:
+    """Register ``pbicrl benchmark icrl {train,demos,report}`` (imports nothing optional until it runs)."""
+    from pbicrl.cli.argtypes import nonneg_int, positive_int
+
+    p = sub.add_parser("benchmark", help="benchmarks: 'icrl' (the ICRL benchmark of Liu et al., ICLR 2023)",
+                       description="Benchmarks of pbicrl against the field's.")
+    suites = p.add_subparsers(dest="suite", required=True, metavar="SUITE")
+    icrl = suites.add_parser("icrl", help="the ICRL benchmark's virtual tasks (Blocked Half-Cheetah, ...)",
+                             description="The five virtual tasks of the ICRL benchmark: train reference policies, "
+                                         "generate ranked demonstrations, report.")
+    acts = icrl.add_subparsers(dest="action", required=True, metavar="ACTION")
+    t = acts.add_parser("train", help="train runs (ppo, ppo_lag_true, ppo_lag_inferred); resumable")
+    _train_options(t)
+    t.set_defaults(func=_train)
+    d = acts.add_parser("demos", help="ranked demonstrations (groups 1 never crosses, 2 briefly, 3 through)",
+                        description="Roll out a mix of policies from one start distribution and label each "
+                                    "episode by what it did with the true wall.")
+    d.add_argument("--task", required=True, help="halfcheetah, ant, pendulum, walker, swimmer")
+    d.add_argument("--expert", required=True, type=Path, help="checkpoint of the ppo_lag_true run (best.pt)")
+    d.add_argument("--unconstrained", required=True, type=Path, help="checkpoint of the ppo run")
+    d.add_argument("--handover", type=Path, default=None,
+                   help="checkpoint the 'switch' source starts with before handing over to the expert near the "
+                        "wall (default: --unconstrained; an early checkpoint of the ppo run is slower, so the "
+                        "expert can turn it back after a brief crossing)")
+    d.add_argument("--out", required=True, type=Path, help="the .npz to write (the record goes beside it, .json)")
+    d.add_argument("--n-per-group", type=positive_int, default=100, help="episodes per group (default 100)")
+    d.add_argument("--seed", type=nonneg_int, default=0, help="seed (default 0)")
+    d.add_argument("--brief-max-steps", type=positive_int, default=None,
+                   help="group 2: at most this many violating steps (default 10%% of the episode length)")
+    d.add_argument("--through-min-steps", type=positive_int, default=None,
+                   help="group 3: at least this many violating steps (default half the episode length)")
+    d.add_argument("--noise-sd", type=float, default=0.5, help="action noise of expert_noise (default 0.5)")
+    d.add_argument("--sources", default=None, help="comma-separated sources (default all: expert, expert_noise, "
+                                                   "unconstrained, switch)")
+    d.add_argument("--max-episodes", type=positive_int, default=3000, help="give up after this many (default 3000)")
+    d.add_argument("--quiet", action="store_true", help="no progress lines")
+    d.set_defaults(func=_demos)
+    r = acts.add_parser("report", help="table and figures from the run directories",
+                        description="Violation rate and feasible cumulative reward per task and method.")
+    r.add_argument("--runs", required=True, type=Path, help="root of the training runs (train --out)")
+    r.add_argument("--out", type=Path, default=Path("docs/benchmarks/icrl"),
+                   help="where report.md, results.json and figures/ go (default docs/benchmarks/icrl)")
+    r.add_argument("--tasks", default=None, help="comma-separated tasks (default all five)")
+    r.add_argument("--seeds", type=positive_int, default=5, help="seeds planned per row (default 5)")
+    r.add_argument("--no-figures", action="store_true", help="no figures")
+    r.set_defaults(func=_report)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m pbicrl.cli.icrl_benchmark --out DIR --run TASK:METHOD:SEED:STEPS [--run ...]``: train
     the listed runs one after another (each resumable; finished ones are skipped)."""
-    from pbicrl.experiments.icrl_benchmark import expert_config, train_policy
-
     p = argparse.ArgumentParser(prog="python -m pbicrl.cli.icrl_benchmark", description=main.__doc__)
-    p.add_argument("--out", required=True, help="root directory of the runs")
-    p.add_argument("--run", action="append", required=True, metavar="TASK:METHOD:SEED:STEPS",
-                   help="a run to train (repeatable; trained in order), e.g. halfcheetah:ppo_lag_true:0:3000000")
-    p.add_argument("--checkpoint-every", type=int, default=2, help="updates between checkpoints (default 2)")
-    p.add_argument("--eval-every", type=int, default=10, help="updates between evaluations (default 10)")
+    _train_options(p)
     args = p.parse_args(argv)
     try:
-        jobs = [_parse_job(j) for j in args.run]
-        for task, method, seed, steps in jobs:
-            expert_config(task, method)  # fail on a bad task or method before hours of training
-        for task, method, seed, steps in jobs:
-            train_policy(task, method, seed, args.out, steps, checkpoint_every=args.checkpoint_every,
-                         eval_every=args.eval_every, log=lambda s: print(time.strftime("%H:%M:%S"), s, flush=True))
+        return _train(args)
     except (ValueError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

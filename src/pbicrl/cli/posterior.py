@@ -216,7 +216,7 @@ def add_subcommands(sub: Any) -> None:
                        description="Convergence diagnostics of every penalty, indicator and parameter of a run.")
     p.add_argument("run", type=Path, help="run directory (summary.json + chains.npz)")
     p.add_argument("--json", action="store_true", help="print JSON")
-    p.add_argument("--require-arviz", action="store_true", help="fail instead of falling back without ArviZ")
+    p.add_argument("--require-arviz", action="store_true", help="compute R-hat and ESS with ArviZ itself (fails without it) instead of pbicrl's equal implementation")
     p.set_defaults(func=_cmd_diagnose)
 
     p = sub.add_parser("plot", help="figures of a run: traces, densities, P(constraint), pairs, rewards",

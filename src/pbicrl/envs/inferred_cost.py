@@ -96,6 +96,9 @@ def _wrapper_chain(env: Any) -> list[Any]:
     return chain
 
 
+_ICRL_CLASSES = ("BlockedHalfCheetahEnv", "BlockedAntEnv", "BiasedPendulumEnv", "BlockedWalkerEnv", "BlockedSwimmerEnv")
+
+
 def default_step_functions(env: Any) -> tuple[str, tuple[str, ...], StepFunction, StepFunction, int] | None:
     r"""Per-step features and state of a shipped environment.
 
@@ -109,7 +112,9 @@ def default_step_functions(env: Any) -> tuple[str, tuple[str, ...], StepFunction
     (name, feature_names, features, state, state_width) or None
         ``None`` for an environment pbicrl does not ship. Point mass and Fetch-Reach: ``info["features"]``
         and the position (:math:`s \in \mathbb R^2`, :math:`\mathbb R^3`); HalfCheetah/Ant with a wall:
-        ``info["features"]`` and ``[info["x_position"]]`` (the x reached by the step); 3x3 grid:
+        ``info["features"]`` and ``[info["x_position"]]`` (the x reached by the step); the ICRL benchmark's
+        tasks (:mod:`pbicrl.envs.icrl_benchmark`): ``info["features"]`` (the reward's terms) and
+        ``[info["x_position"]]`` (the post-step ``qpos[0]``, the benchmark's ``obs[0]``); 3x3 grid:
         ``info["features"]`` and ``(row, col)`` of the cell. These are the ``states`` the shipped datasets
         hold, so the ``dims`` of a run's parametric constraints index them.
     """
@@ -123,6 +128,12 @@ def default_step_functions(env: Any) -> tuple[str, tuple[str, ...], StepFunction
                 return "wall", tuple(FEATURE_NAMES), feats, x, 1
     u = getattr(env, "unwrapped", env)
     cls = type(u).__name__
+    if cls in _ICRL_CLASSES:
+        from pbicrl.envs.icrl_benchmark import ICRLTask
+
+        task = getattr(u, "task", None)
+        if isinstance(task, ICRLTask):
+            return task.name, tuple(task.feature_names), feats, _info_array("x_position", "state"), 1
     if cls in ("PointMassEnv", "FetchReachConstrainedEnv"):
         from pbicrl.envs.regions import FEATURE_NAMES as NAV
 

@@ -9,6 +9,12 @@ runs its task's MCMC chains in-process, each from its own child of the task's ``
 * :class:`RayExecutor` - Ray's task API (``ray.remote``), on a local Ray instance or the cluster named by
   ``address`` / ``RAY_ADDRESS``; the optional extra ``pip install "pbicrl[ray]"``.
 
+Progress inside the runs: given a :class:`~pbicrl.inference.samplers.driver.RunsCounter` (``counter``), the serial
+and local executors count the sampler iterations of the tasks in progress there (a sweep's bar shows them); the
+local pool passes it to its workers through the pool's initializer (``fork`` and ``spawn`` alike) and, while it
+waits, calls its :meth:`~pbicrl.inference.samplers.driver.RunsCounter.tick` every ``counter.interval`` (0.5 s).
+The Ray executor ignores it (its workers may be on other machines): a Ray sweep's bar moves when a run ends.
+
 Local pool workers die with the process that started them (:func:`pbicrl.inference.samplers.driver.die_with_parent`):
 a sweep killed with SIGTERM or SIGKILL leaves no task running, and none blocked forever on a pipe to a
 parent that is gone; their temporary directories are removed by the next run.
@@ -24,9 +30,12 @@ from abc import ABC, abstractmethod
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any, Generator, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Generator, Iterator, Sequence
 
 from pbicrl.experiments.tasks import Task, clean_stale_temp_dirs, execute_task, started_hashes, write_shipped
+
+if TYPE_CHECKING:
+    from pbicrl.inference.samplers.driver import RunsCounter
 
 __all__ = ["Executor", "SerialExecutor", "LocalExecutor", "RayExecutor", "make_executor", "EXECUTORS"]
 
@@ -49,12 +58,13 @@ class Executor(ABC):
         """How many tasks run at once."""
 
     @abstractmethod
-    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False
-            ) -> Iterator[tuple[Task, dict[str, Any]]]:
+    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False,
+            counter: RunsCounter | None = None) -> Iterator[tuple[Task, dict[str, Any]]]:
         """Run ``tasks``, writing each results directory under ``root``; yield ``(task, outcome)`` as they finish.
 
         A failing task yields an outcome with ``status == "failed"`` and its ``error``; it never stops the
-        others. ``force`` replaces finished results instead of keeping the first copy.
+        others. ``force`` replaces finished results instead of keeping the first copy. ``counter`` counts the
+        sampler iterations of the tasks in progress, where the executor supports it (see the module docstring).
         """
 
     def describe(self) -> str:
@@ -70,15 +80,22 @@ class SerialExecutor(Executor):
     def workers(self) -> int:
         return 1
 
-    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False
-            ) -> Iterator[tuple[Task, dict[str, Any]]]:
+    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False,
+            counter: RunsCounter | None = None) -> Iterator[tuple[Task, dict[str, Any]]]:
+        from pbicrl.inference.samplers.driver import set_runs_counter
+
         root = Path(root).absolute()
         for task in tasks:
-            yield task, execute_task(task, root, force=force)
+            old = set_runs_counter(counter)
+            try:
+                outcome = execute_task(task, root, force=force)
+            finally:
+                set_runs_counter(old)
+            yield task, outcome
 
 
-def _init_pool_worker(parent: int | None = None) -> None:
-    from pbicrl.inference.samplers.driver import die_with_parent
+def _init_pool_worker(parent: int | None = None, counter: RunsCounter | None = None) -> None:
+    from pbicrl.inference.samplers.driver import die_with_parent, set_runs_counter
 
     # A worker whose parent is gone would finish its task, then wait forever for the next one on a pipe
     # that its siblings keep open: end it with the parent instead (the next run cleans its temporaries).
@@ -88,6 +105,7 @@ def _init_pool_worker(parent: int | None = None) -> None:
     # The parent's SIGTERM handler (a sweep turns SIGTERM into an interrupt) is inherited through fork:
     # a worker must die on the parent's terminate(), as any process does by default.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    set_runs_counter(counter)  # the sampler counts its iterations there, for the sweep's bar
 
 
 class LocalExecutor(Executor):
@@ -126,29 +144,32 @@ class LocalExecutor(Executor):
     def workers(self) -> int:
         return self.max_workers
 
-    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False
-            ) -> Iterator[tuple[Task, dict[str, Any]]]:
+    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False,
+            counter: RunsCounter | None = None) -> Iterator[tuple[Task, dict[str, Any]]]:
         root = Path(root).absolute()
         pending, suspects = list(tasks), []
         while pending:
-            started, queued, progressed = yield from self._round(pending, root, force, self.max_workers)
+            started, queued, progressed = yield from self._round(pending, root, force, self.max_workers, counter)
             suspects += started
             if not started and not progressed:  # died before any task could start: no way to tell who
                 suspects, queued = suspects + queued, []
             pending = queued
         for task in suspects:
-            started, queued, _ = yield from self._round([task], root, force, 1)
+            started, queued, _ = yield from self._round([task], root, force, 1, counter)
             if started or queued:
                 yield task, _failed(task, "worker process died while running this task (killed for memory, "
                                           "or a crash in compiled code)")
 
-    def _round(self, tasks: list[Task], root: Path, force: bool, workers: int
+    def _round(self, tasks: list[Task], root: Path, force: bool, workers: int, counter: RunsCounter | None
                ) -> Generator[tuple[Task, dict[str, Any]], None, tuple[list[Task], list[Task], bool]]:
         """Run ``tasks`` on one pool, yielding outcomes; returns the tasks a broken pool cut short
         (started, queued) and whether any task finished."""
         ctx = mp.get_context(self.start_method)
+        if counter is not None:
+            # no task in progress (a worker that died in the last round left its share); memory of this context
+            counter.reset(ctx)
         pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=_init_pool_worker,
-                                   initargs=(os.getpid(),))
+                                   initargs=(os.getpid(), counter))
         cut: list[Task] = []
         progressed = False
         try:
@@ -157,7 +178,10 @@ class LocalExecutor(Executor):
             futures = {pool.submit(execute_task, t, root, force=force, jobs=jobs): t for t in tasks}
             not_done = set(futures)
             while not_done:
-                done, not_done = wait(not_done, return_when=FIRST_COMPLETED)
+                done, not_done = wait(not_done, timeout=None if counter is None else max(counter.interval, 0.05),
+                                      return_when=FIRST_COMPLETED)
+                if counter is not None:
+                    counter.tick()  # the sweep's bar: progress inside the running tasks
                 for f in done:
                     task = futures[f]
                     try:
@@ -249,9 +273,9 @@ class RayExecutor(Executor):
         where = self.address or os.environ.get("RAY_ADDRESS") or "local instance"
         return f"ray ({where})"
 
-    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False
-            ) -> Iterator[tuple[Task, dict[str, Any]]]:
-        ray = _import_ray()
+    def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False,
+            counter: RunsCounter | None = None) -> Iterator[tuple[Task, dict[str, Any]]]:
+        ray = _import_ray()  # ``counter`` is not used: a Ray worker may be on another machine
         root = Path(root).absolute()
         started = False
         if not ray.is_initialized():

@@ -10,6 +10,16 @@ the last checkpoint. Command line: ``python -m pbicrl.cli.icrl_benchmark --out D
 ``ppo_lag_true``
     PPO-Lagrangian with the benchmark's true cost (``info["cost"]``, the strict wall indicator on the post-step
     ``obs[0]``), budget 0: the expert / upper reference of the benchmark.
+``ppo_lag_inferred``
+    The same PPO-Lagrangian (same settings, budget 0) whose cost is pbicrl's inferred constraint:
+    :class:`pbicrl.envs.inferred_cost.InferredConstraintCost` of a ``pbicrl infer`` run directory
+    (``inferred_run``), in ``conservative`` mode by default (``cost_mode``), evaluated on the state each step
+    reached (the post-step x and the nominal features); in ``conservative`` mode a wall's boundary must come from
+    the good demonstrations of the run's own dataset (else an error: the posterior's own extreme draw can put
+    the wall on the start). The true cost is still what ``curve.jsonl`` and
+    ``eval.jsonl`` record (the benchmark's metrics); the inferred cost only trains. The run's identity includes
+    the SHA-256 of the inference run's ``summary.json``, the mode and the resulting boundaries, so a rerun with
+    another posterior is refused.
 
 Hyperparameters follow the benchmark's expert configs (``train_ppo_lag_*.yaml``, note section 3) where our PPO has
 the same knob: 5 environments x 2048 steps per rollout, [64, 64] tanh networks, gamma 0.99 (reward and cost),
@@ -82,7 +92,8 @@ __all__ = [
 ]
 
 CHECKPOINT = "checkpoint.pt"
-METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true")
+METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred")
+_LAGRANGIAN = ("ppo_lag_true", "ppo_lag_inferred")
 _EVAL_EPISODES = {"pendulum": 100}  # the note: 10 evaluation episodes per iteration, 100 for the pendulum
 
 # The expert configs of note section 3: lr, epochs, minibatch, GAE lambda (reward), clip, target KL, nu_0, nu lr.
@@ -109,7 +120,7 @@ def expert_config(task: str, method: str) -> Any:
     name = icrl_task(task).name
     _check_method(method)
     h = _EXPERT[name]
-    lag = method == "ppo_lag_true"
+    lag = method in _LAGRANGIAN
     return PPOLagConfig(
         n_envs=5, n_steps=2048, gamma=0.99, cost_gamma=0.99, gae_lambda=h["gae_lambda"], clip=h["clip"],
         lr=h["lr"], n_epochs=int(h["n_epochs"]), minibatch_size=int(h["minibatch_size"]), hidden=(64, 64),
@@ -269,14 +280,15 @@ def _fmt(v: float | None) -> str:
 def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str], total_steps: int, *,
                  checkpoint_every: int = 2, eval_every: int = 10, eval_episodes: int | None = None,
                  config_overrides: dict[str, Any] | None = None, log: Callable[[str], None] | None = print,
-                 max_seconds: float | None = None) -> Path:
+                 max_seconds: float | None = None, inferred_run: str | os.PathLike[str] | None = None,
+                 cost_mode: str = "conservative") -> Path:
     """Train (or continue training) one policy of the ICRL benchmark.
 
     Parameters
     ----------
     task : str
         ``halfcheetah``, ``ant``, ``pendulum``, ``walker``, ``swimmer`` (or a ``pbicrl/...`` id).
-    method : {"ppo", "ppo_lag_true"}
+    method : {"ppo", "ppo_lag_true", "ppo_lag_inferred"}
     seed : int
     out : path
         Root of the runs; the run directory is ``out/<task>/<method>/seed<seed>``.
@@ -293,6 +305,12 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
         Progress lines (``print`` by default).
     max_seconds : float, optional
         Stop (after a checkpoint) once this much wall time has passed in this call.
+    inferred_run : path, optional
+        ``ppo_lag_inferred`` only (and required there): the ``pbicrl infer`` run directory whose posterior is the
+        cost.
+    cost_mode : str
+        ``ppo_lag_inferred``: the :class:`~pbicrl.envs.inferred_cost.InferredConstraintCost` mode (default
+        ``conservative``).
 
     Returns
     -------
@@ -324,11 +342,14 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
             raise ValueError(f"config_overrides: unknown PPO options {sorted(unknown)}")
         cfg = replace(cfg, **config_overrides).validate()
     say = log or (lambda _s: None)
+    inferred = _inferred_cost(spec.name, method, inferred_run, cost_mode)
 
     run = Path(out) / spec.name / method / f"seed{int(seed)}"
     run.mkdir(parents=True, exist_ok=True)
     identity = {"task": spec.name, "env_id": spec.env_id, "method": method, "seed": int(seed), "ppo": cfg.to_dict(),
                 "eval_episodes": n_eval, "eval_every": int(eval_every)}
+    if inferred is not None:
+        identity["inferred_cost"] = inferred[1]
     cfg_path = run / "config.json"
     if cfg_path.exists():
         old = json.loads(cfg_path.read_text(encoding="utf-8"))
@@ -339,6 +360,8 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
                              "or delete it")
     else:
         write_json(cfg_path, {**identity, "pbicrl_version": __version__,
+                              **({"inferred_run": str(Path(inferred_run).resolve()),  # type: ignore[arg-type]
+                                  "inferred_boundary_source": inferred[0].boundary_source} if inferred else {}),
                               "note": "ICRL benchmark reference policy; see pbicrl.experiments.icrl_benchmark"})
 
     lock = run / "lock"
@@ -348,6 +371,10 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
         coord_fn = lambda o, info: np.asarray([o[0]], dtype=np.float64)  # noqa: E731
         if method == "ppo_lag_true":
             cost_fn = lambda xs: spec.cost(np.asarray(xs)[:, 0])  # noqa: E731
+        elif inferred is not None:
+            icc = inferred[0]
+            coord_fn = lambda o, info: np.concatenate([[o[0]], np.asarray(info["features"], dtype=np.float64)])  # noqa: E731
+            cost_fn = lambda cs: icc.costs(features=np.asarray(cs)[:, 1:], states=np.asarray(cs)[:, :1])  # noqa: E731
         else:
             cost_fn = lambda xs: np.zeros(np.asarray(xs).shape[0])  # noqa: E731
         agent = PPOLagrangian(lambda: EpisodeRecorder(_make_env(spec.name), sink), coord_fn, cost_fn, cfg,
@@ -435,6 +462,48 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
         lock.unlink(missing_ok=True)
 
 
+def _inferred_cost(task: str, method: str, run_dir: str | os.PathLike[str] | None,
+                   mode: str) -> tuple[Any, dict[str, Any]] | None:
+    """``ppo_lag_inferred``: the :class:`InferredConstraintCost` of ``run_dir`` on ``task`` and its identity
+    (summary hash, mode, used constraints, conservative boundaries); None for the other methods."""
+    if method != "ppo_lag_inferred":
+        if run_dir is not None:
+            raise ValueError(f"inferred_run: only for method ppo_lag_inferred, not {method!r}")
+        return None
+    if run_dir is None:
+        raise ValueError("inferred_run: method ppo_lag_inferred needs the run directory of pbicrl infer "
+                         "(--inferred-run)")
+    from pbicrl.envs.inferred_cost import MODES, InferredConstraintCost
+
+    if mode not in MODES:
+        raise ValueError(f"cost_mode: expected one of {', '.join(MODES)}, got {mode!r}")
+    summary = Path(run_dir) / "summary.json"
+    if not summary.is_file():
+        raise ValueError(f"inferred_run: {run_dir} has no summary.json (not a pbicrl infer run directory)")
+    env = _make_env(task)
+    try:
+        icc = InferredConstraintCost(env, run_dir, mode=mode)
+    finally:
+        env.close()
+    fallback = {k: v for k, v in icc.boundary_source.items() if not v.startswith("the good demonstrations")}
+    if fallback:  # the posterior's own extreme draw can put the wall on the start (measured: x <= 0.41 on HC)
+        where = {k: float(icc.conservative_location[k][0]) for k in fallback}
+        raise ValueError(f"inferred_run: the conservative boundary of {', '.join(fallback)} would come from "
+                         f"{next(iter(fallback.values()))}, not from the good demonstrations (boundary {where}); "
+                         f"run pbicrl infer again where its dataset can be read, or choose another cost_mode")
+    ident = {"summary_sha256": _file_sha256(summary), "mode": mode,
+             "used": [icc.feature_names[j] for j in icc.used],
+             "boundary": {k: [float(v) for v in np.ravel(b)] for k, b in icc.conservative_location.items()},
+             "p_constraint": {icc.feature_names[j]: float(icc.p_constraint[j]) for j in icc.used}}
+    return icc, ident
+
+
+def _file_sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def _acquire(lock: Path) -> None:
     """Create ``lock`` holding this process id; refuse while another live process holds it."""
     from pbicrl._atomic import pid_alive
@@ -491,6 +560,11 @@ class CheckpointPolicy:
         self._gen = torch.Generator().manual_seed(int(seed))
         self.steps = int(st["num_steps"])
 
+    def reset(self, seed: int) -> None:
+        """Re-seed the action noise (:func:`rollout_episodes` calls it with each episode's reset seed, so that
+        an episode of a stochastic policy does not depend on the episodes before it)."""
+        self._gen.manual_seed(int(seed))
+
     def __call__(self, obs: Any) -> NDArray[np.float64]:
         import torch
 
@@ -506,6 +580,8 @@ class CheckpointPolicy:
 
 def rollout_episodes(task: str, policy: Callable[[Any], Any], episodes: int, *, seed: int = 0) -> list[dict[str, Any]]:
     """Run ``episodes`` episodes of ``policy`` on ``task`` (reset seeds ``seed, seed + 1, ...``) and record them.
+
+    A policy with a ``reset(seed)`` method is reset with each episode's reset seed before its first action.
 
     Returns
     -------
@@ -523,6 +599,8 @@ def rollout_episodes(task: str, policy: Callable[[Any], Any], episodes: int, *, 
     try:
         for k in range(int(episodes)):
             obs, _ = env.reset(seed=int(seed) + k)
+            if callable(getattr(policy, "reset", None)):
+                policy.reset(int(seed) + k)  # type: ignore[attr-defined]
             obs_l, feats, xs, acts, rews, costs = [np.asarray(obs, dtype=np.float64)], [], [], [], [], []
             while True:
                 a = np.clip(np.asarray(policy(obs), dtype=np.float64), low, high)
@@ -548,7 +626,8 @@ def demonstrations_dataset(task: str, groups: dict[int, Sequence[dict[str, Any]]
 
     ``groups[k]`` are the episodes of group ``k`` (1 = best). Features: the task's nominal features (the reward's
     terms, with ``nominal_weights``); states: the post-step x (one column), which a parametric wall constraint
-    (``axis_halfspace`` on column 0) indexes; actions; ``env_id`` the task's Gymnasium id.
+    (``axis_halfspace`` on column 0) indexes; actions (none when an episode has no ``actions``); ``env_id`` the
+    task's Gymnasium id.
     """
     from pbicrl.envs.icrl_benchmark import icrl_task
     from pbicrl.inference.data import Dataset
@@ -561,12 +640,13 @@ def demonstrations_dataset(task: str, groups: dict[int, Sequence[dict[str, Any]]
         for ep in groups[g]:
             feats.append(np.asarray(ep["features"], dtype=np.float64))
             states.append(np.asarray(ep["x"], dtype=np.float64)[:, None])
-            acts.append(np.asarray(ep["actions"], dtype=np.float64))
+            if "actions" in ep:
+                acts.append(np.asarray(ep["actions"], dtype=np.float64))
             labels.append(int(g))
             offsets.append(offsets[-1] + len(ep["x"]))
     if len(set(labels)) < 2:
         raise ValueError(f"groups: need episodes in at least two groups, got labels {sorted(set(labels))}")
     return Dataset(features=np.concatenate(feats), offsets=np.asarray(offsets), group=np.asarray(labels),
-                   states=np.concatenate(states), actions=np.concatenate(acts),
+                   states=np.concatenate(states), actions=np.concatenate(acts) if len(acts) == len(labels) else None,
                    feature_names=spec.feature_names, nominal_weights=np.asarray(spec.nominal_weights),
                    env_id=spec.env_id)

@@ -31,6 +31,7 @@ running tasks are stopped, finished runs kept, ``sweep.json`` written.
 
 from __future__ import annotations
 
+import inspect
 import itertools
 import json
 import math
@@ -232,7 +233,9 @@ def run_tasks(
     force : bool
         Run everything again, replacing finished results.
     progress : bool
-        One progress bar for the sweep (stderr); failures are printed as they happen.
+        One progress bar for the sweep (stderr); failures are printed as they happen. With the serial and local
+        executors the bar also shows the sampler iterations of the runs in progress (done / planned, or done
+        so far in runs until converged), updated twice a second, and says when a run compiles the sampler.
     manifest : bool or path
         Write ``sweep.json`` (to ``root`` or this path), updated as runs finish.
     on_outcome : callable, optional
@@ -279,15 +282,20 @@ def run_tasks(
                 _note_stale(group[0].task, root, progress)
 
     bar = _bar(len(by_hash), len(by_hash) - len(todo), progress)
-    if bar is not None and todo:  # nothing finishes while the workers compile the samplers: say so
+    status = None if bar is None else _BarStatus(bar)
+    counter = None
+    if status is not None and todo:  # nothing finishes while the workers compile the samplers: say so
         from pbicrl.analysis.margins import COMPILING_NOTE
+        from pbicrl.inference.samplers.driver import RunsCounter
 
         bar.set_description(f"sweep ({COMPILING_NOTE})")
-    first = True
+        counter = RunsCounter(status.update)
     t0 = time.perf_counter()
     last_save = 0.0
     n_failed = 0
-    outcomes = executor.run(todo, root, force=force)
+    if counter is not None and "counter" not in inspect.signature(executor.run).parameters:
+        counter = None  # an executor of the user's, written before executors counted iterations
+    outcomes = executor.run(todo, root, force=force, **({} if counter is None else {"counter": counter}))
     try:
         if manifest_path is not None:
             result.save(manifest_path)
@@ -304,13 +312,13 @@ def run_tasks(
                     bar.write(msg, file=sys.stderr)
                 else:
                     print(msg, file=sys.stderr)
-            if bar is not None:
-                if first:
-                    bar.set_description("sweep")
-                    first = False
+            if status is not None:
+                status.started()
+                status.failed = n_failed
                 bar.update(1)
-                if n_failed:
-                    bar.set_postfix(failed=n_failed, refresh=False)
+                status.show()
+                if counter is not None:
+                    counter.tick(force=True)  # the finished run's share is out
             result.wall_s = time.perf_counter() - t0
             if manifest_path is not None and time.monotonic() - last_save > 2.0:
                 result.save(manifest_path)
@@ -363,6 +371,58 @@ def _auto_settings(tasks: Sequence[Task]) -> list[dict[str, Any]]:
             keys += [k for k in t.config if k not in keys and not k.endswith("_sha256")]  # derived from a path
         vary[kind] = [k for k in keys if len({canonical_json(t.config.get(k)) for t in same}) > 1]
     return [({"kind": t.kind} if len(kinds) > 1 else {}) | {k: t.config.get(k) for k in vary[t.kind]} for t in tasks]
+
+
+class _BarStatus:
+    """The sweep bar's description and postfix: failures so far and the progress inside the runs in progress
+    (a :class:`~pbicrl.inference.samplers.driver.RunsCounter`'s ``on_change``)."""
+
+    def __init__(self, bar: Any) -> None:
+        self.bar = bar
+        self.failed = 0
+        self.runs: Any = None  # the last RunsSnapshot
+        self._text: str | None = None
+        self._started = False
+        self._noted = False
+
+    def update(self, runs: Any) -> None:
+        self.runs = runs
+        if runs.done or runs.done_until_converged:
+            self.started()  # a run samples: the compiling note of the description is no longer needed
+        self.show()
+
+    def started(self) -> None:
+        if not self._started:
+            self.bar.set_description("sweep", refresh=False)
+            self._started = True
+
+    def show(self) -> None:
+        from tqdm import tqdm
+
+        def size(n: int) -> str:
+            return tqdm.format_sizeof(n) if n else "0"
+
+        parts = []
+        r = self.runs
+        if r is not None:
+            if r.compiling:
+                if not self._noted:  # once: the compile takes ~15 s, minutes on a loaded machine
+                    from pbicrl.inference.samplers.driver import COMPILE_NOTE
+
+                    self.bar.write(COMPILE_NOTE, file=sys.stderr)
+                    self._noted = True
+                parts.append(f"compiling the sampler ({r.compiling} run{'s' if r.compiling != 1 else ''})")
+            if r.planned > 0:
+                parts.append(f"in runs {size(r.done)}/{size(r.planned)} it "
+                             f"({100 * r.done / r.planned:.0f}%)")
+            if r.done_until_converged > 0:
+                parts.append(f"{size(r.done_until_converged)} it in runs until converged")
+        if self.failed:
+            parts.append(f"failed={self.failed}")
+        text = ", ".join(parts)
+        if text != self._text:
+            self._text = text
+            self.bar.set_postfix_str(text, refresh=True)
 
 
 def _bar(total: int, initial: int, enabled: bool) -> Any:

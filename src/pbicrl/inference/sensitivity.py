@@ -126,8 +126,6 @@ def weight_prior_spec(src: Any, feature_names: Sequence[str], j: int) -> dict[st
 
 def sample_prior(spec: Mapping[str, Any], rng: np.random.Generator, size: int) -> NDArray[np.float64] | None:
     """``size`` draws from the (truncated) prior a spec describes (:func:`log_prior_density`); ``None`` if unknown."""
-    from scipy import stats
-
     kind = str(spec.get("kind", "")).lower()
     lo, hi = _support(spec)
     if kind in ("flat", "uniform"):
@@ -161,8 +159,6 @@ def log_prior_density(spec: Mapping[str, Any], w: NDArray[np.float64], *, widen:
     ``cauchy`` (``mean`` or ``loc``, ``scale``, ``df``), truncated to ``support``. ``widen`` multiplies the scale
     (a box's half-width about its centre; a support end at 0, a sign restriction, stays).
     """
-    from scipy import stats
-
     kind = str(spec.get("kind", "")).lower()
     lo, hi = _support(spec)
     w = np.asarray(w, dtype=np.float64)
@@ -331,15 +327,41 @@ def prior_sensitivity(indicators: NDArray[Any], penalty_weights: NDArray[np.floa
     return PriorSensitivity(basis, fitted, wider, flags, ess, S)
 
 
-def _standard_dist(kind: str, spec: Mapping[str, Any]) -> Any:
-    """The standardised SciPy distribution of a location-scale prior kind (``normal``, Student-t, Cauchy), or None."""
-    from scipy import stats
+class _Std:
+    """A standardised location-scale distribution (normal, or Student-t with ``df``): ``cdf``, ``ppf``,
+    ``logpdf`` from :mod:`scipy.special` (``scipy.stats`` costs about a second to import on every run)."""
 
+    def __init__(self, df: float | None) -> None:
+        self.df = df
+
+    def cdf(self, z: Any) -> Any:
+        from scipy import special
+
+        return special.ndtr(z) if self.df is None else special.stdtr(self.df, z)
+
+    def ppf(self, u: Any) -> Any:
+        from scipy import special
+
+        return special.ndtri(u) if self.df is None else special.stdtrit(self.df, u)
+
+    def logpdf(self, z: Any) -> Any:
+        from scipy.special import gammaln
+
+        z = np.asarray(z, dtype=np.float64)
+        if self.df is None:
+            return -0.5 * z * z - 0.5 * math.log(2.0 * math.pi)
+        v = self.df
+        return (float(gammaln(0.5 * (v + 1.0)) - gammaln(0.5 * v)) - 0.5 * math.log(v * math.pi)
+                - 0.5 * (v + 1.0) * np.log1p(z * z / v))
+
+
+def _standard_dist(kind: str, spec: Mapping[str, Any]) -> _Std | None:
+    """The standardised distribution of a location-scale prior kind (``normal``, Student-t, Cauchy), or None."""
     if kind == "normal":
-        return stats.norm
+        return _Std(None)
     if kind in ("student_t", "studentt", "student-t", "t", "cauchy"):
         df = 1.0 if kind == "cauchy" else spec.get("df", spec.get("nu"))
         if not isinstance(df, (int, float)) or not df > 0:
             return None
-        return stats.t(float(df))
+        return _Std(float(df))
     return None

@@ -145,3 +145,66 @@ def test_a_worker_dies_when_its_parent_dies(tmp_path, mode):
     finally:
         if _alive(pid):
             os.kill(pid, 9)
+
+
+# ------------------------------------------------------------------------------------------------ sweep counting
+@pytest.mark.parametrize("jobs, auto", [(1, False), (2, False), (1, True)])
+def test_a_run_counts_its_iterations_in_the_sweeps_counter_and_takes_them_out_at_the_end(lik, jobs, auto):
+    """Issue 30 item 13: a sweep's bar shows the progress inside its runs from this counter."""
+    from pbicrl.inference.samplers.driver import (
+        RunsCounter,
+        RunsSnapshot,
+        StoppingRule,
+        set_runs_counter,
+    )
+
+    snaps: list[RunsSnapshot] = []
+    counter = RunsCounter(snaps.append, interval=0.0)
+    n = 60_000  # three chunks of 20,000 per chain
+    old = set_runs_counter(counter)
+    try:
+        if auto:
+            sample(lik, n_chains=2, seed=3, n_jobs=jobs, progress=False,
+                   stopping=StoppingRule(max_time=2.0, warmup=1000, first_check=3000))
+        else:
+            sample(lik, n_iterations=n, n_chains=2, seed=3, n_jobs=jobs, progress=False)
+    finally:
+        set_runs_counter(old)
+    assert snaps[-1] == RunsSnapshot(0, 0, 0, 0) == counter.snapshot()  # the ended run's share is out
+    running = snaps[:-1]
+    if auto:
+        assert all(s.planned == 0 and s.done == 0 for s in running)
+        seen = [s.done_until_converged for s in running]
+        assert seen == sorted(seen) and 0 < seen[0] and len(set(seen)) >= 3  # counted per 2,000 iterations
+    else:
+        assert all(s.planned == 2 * n for s in running)
+        seen = [s.done for s in running]
+        assert seen == sorted(seen) and seen[-1] == 2 * n
+        assert any(0 < d < 2 * n for d in seen)  # progress inside the run, before it ends
+        if jobs == 1:
+            assert [d for d in seen if d] == [20_000 * k for k in range(1, 7)]  # every chunk of both chains
+
+
+def _sweep_globals() -> tuple[bool, bool]:
+    from pbicrl.inference.samplers import driver
+
+    return driver._runs_counter is None, driver._current_run is None
+
+
+def test_no_counting_outside_a_sweep_and_a_chain_worker_never_counts_for_the_sweep(lik):
+    import multiprocessing as mp
+
+    from pbicrl.inference.samplers import driver
+
+    assert driver._runs_counter is None and driver._current_run is None
+    sample(lik, n_iterations=100, n_chains=1, seed=0, n_jobs=1, progress=False)  # nothing to count in: no error
+    if "fork" not in mp.get_all_start_methods():
+        pytest.skip("needs fork (the worker inherits the task's counter)")
+    old = driver.set_runs_counter(driver.RunsCounter())
+    try:
+        ctx = mp.get_context("fork")
+        with ProcessPoolExecutor(1, mp_context=ctx, initializer=driver._init_worker,
+                                 initargs=(ctx.Value("q", 0), os.getpid())) as pool:
+            assert pool.submit(_sweep_globals).result() == (True, True)
+    finally:
+        driver.set_runs_counter(old)

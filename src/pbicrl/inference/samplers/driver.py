@@ -8,6 +8,10 @@ or ``kill -KILL`` of a ``pbicrl`` process leaves no chain running. Workers ignor
 The compiled sampler is cached on disk by Numba; the first run of an installation compiles it (about 15 s),
 which :func:`sample` announces on stderr when it shows progress.
 
+Runs inside a sweep (:mod:`pbicrl.experiments.sweep`) show no bar of their own; they count their iterations, and
+whether they are compiling, in the sweep's :class:`RunsCounter` (shared with the sweep's worker processes), whose
+bar shows the progress inside the runs in progress.
+
 Per-draw statistics (:class:`_DrawStats`): besides the draws, every chain records for each kept draw the move
 type of the iteration that produced it (:data:`MOVE_CODES`), whether that move was accepted, and the fraction
 of iterations accepted since the previous kept draw. The compiled loop keeps counters only, so the driver runs
@@ -29,9 +33,10 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Self, Sequence
 
 import numpy as np
 
@@ -43,12 +48,15 @@ from pbicrl.inference.posterior import Posterior
 from pbicrl.inference.samplers.kernels import ADAPT_EVERY, ChainState, Kernel, SamplerSettings, build_kernel
 
 __all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES",
-           "StoppingRule"]
+           "StoppingRule", "RunsCounter", "RunsSnapshot", "set_runs_counter", "COMPILE_NOTE"]
 
 # Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
 _CHUNK = 20_000
 _progress_counter: Any = None  # set in workers (inherited through fork) for the progress bar
-_COMPILE_NOTE = "pbicrl: compiling the sampler (first run only, ~15 s)..."
+COMPILE_NOTE = "pbicrl: compiling the sampler (first run only: about a minute, cached afterwards)..."
+"""What :func:`sample` (with progress) and a sweep's bar print once before a run compiles the sampler."""
+_runs_counter: RunsCounter | None = None  # a sweep's, in the process that runs its tasks (set_runs_counter)
+_current_run: _RunShare | None = None  # the run sample() is doing in this process, counted in _runs_counter
 
 MOVE_CODES = MOVES
 """Per-draw move codes (``Posterior.move``): the move the compiled loop chose at the iteration of a kept draw."""
@@ -115,13 +123,15 @@ def die_with_parent(parent: int | None = None, *, sig: int | None = None, interv
 
 
 def _init_worker(counter: Any, parent: int | None = None) -> None:
-    global _progress_counter
+    global _progress_counter, _runs_counter, _current_run
     die_with_parent(parent)
     # Ctrl-C reaches the whole process group; the parent alone decides, and stops the workers itself.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # A SIGTERM handler inherited through fork (a sweep's, ICL's) must not keep a chain alive on terminate().
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _progress_counter = counter
+    # a chain worker forked from a sweep's task reports to the task (through ``counter``), never to the sweep
+    _runs_counter = _current_run = None
 
 
 def stop_pool(pool: ProcessPoolExecutor, *, grace: float = 2.0) -> None:
@@ -138,6 +148,141 @@ def stop_pool(pool: ProcessPoolExecutor, *, grace: float = 2.0) -> None:
         if p.is_alive():  # a worker that handles SIGTERM (e.g. to checkpoint) and takes too long
             p.kill()
             p.join(timeout=grace)
+
+
+# ---------------------------------------------------------------------------------------------- sweeps
+class RunsSnapshot(NamedTuple):
+    """What a :class:`RunsCounter` holds at one moment (the runs in progress only)."""
+
+    done: int
+    """Iterations done by the fixed-length runs in progress (all chains)."""
+    planned: int
+    """Iterations those runs will do in all."""
+    done_until_converged: int
+    """Iterations done by the runs until converged in progress (no total is known in advance)."""
+    compiling: int
+    """Runs that are compiling the sampler (before their first iteration)."""
+
+
+class RunsCounter:
+    """Sampler iterations of a sweep's runs in progress, shared with the processes that run them.
+
+    A sweep makes one and hands it to its executor, which installs it (:func:`set_runs_counter`) where the
+    tasks run: in its pool's worker processes (through the pool's initializer, with ``fork`` or ``spawn``) or
+    in this process. :func:`sample` then adds its run's planned and done iterations as the chains advance (every
+    20,000 iterations of a chain, 2,000 in runs until converged) and takes them out again when the run ends,
+    so the counts describe the runs in progress only.
+
+    Parameters
+    ----------
+    on_change : callable, optional
+        ``on_change(snapshot)``, called with a :class:`RunsSnapshot` in the process that made the counter (never
+        in a worker), from :meth:`add` (runs in this process) and :meth:`tick` (an executor waiting for its
+        workers), at most every ``interval`` seconds for iterations done (at once when a run starts or ends,
+        or starts or ends compiling).
+    interval : float, optional
+        Seconds between two calls of ``on_change`` (default :attr:`interval`); also how often an executor that
+        waits for its workers calls :meth:`tick`.
+    """
+
+    interval: float = 0.5
+    """Default seconds between two calls of ``on_change``."""
+
+    def __init__(self, on_change: Callable[[RunsSnapshot], None] | None = None, *, interval: float | None = None
+                 ) -> None:
+        self.reset()
+        self.on_change = on_change
+        self.interval = float(type(self).interval if interval is None else interval)
+        self._owner = os.getpid()
+        self._last = -math.inf
+
+    def __getstate__(self) -> dict[str, Any]:  # pickled for a spawned worker: the callback stays here
+        return self.__dict__ | {"on_change": None}
+
+    def add(self, done: int = 0, planned: int = 0, done_until_converged: int = 0, compiling: int = 0) -> None:
+        """Add to the counts (negative numbers take a finished run's share out)."""
+        with self.values.get_lock():
+            for k, n in enumerate((done, planned, done_until_converged, compiling)):
+                if n:
+                    self.values[k] += int(n)
+        # a run starts or ends, or starts or ends compiling: show it now
+        self.tick(force=bool(planned or compiling) or min(done, done_until_converged) < 0)
+
+    def reset(self, ctx: Any = None) -> None:
+        """Zero the counts, in new shared memory of the ``multiprocessing`` context ``ctx`` (that of the pool that
+        will share them). Only with no run in progress (an executor starting a pool): a killed worker's share
+        is gone."""
+        self.values = (ctx or mp.get_context()).Array("q", len(RunsSnapshot._fields))
+
+    def snapshot(self) -> RunsSnapshot:
+        with self.values.get_lock():
+            return RunsSnapshot(*(int(v) for v in self.values))
+
+    def tick(self, *, force: bool = False) -> None:
+        """Call ``on_change`` if this is the process that made the counter and ``interval`` has passed."""
+        if self.on_change is None or os.getpid() != self._owner:
+            return
+        now = time.monotonic()
+        if force or now - self._last >= self.interval:
+            self._last = now
+            self.on_change(self.snapshot())
+
+
+def set_runs_counter(counter: RunsCounter | None) -> RunsCounter | None:
+    """Count the runs of this process in ``counter`` (None: in none); returns the counter it replaces."""
+    global _runs_counter
+    old, _runs_counter = _runs_counter, counter
+    return old
+
+
+class _RunShare:
+    """The run :func:`sample` is doing, as counted in the sweep's :class:`RunsCounter` (nothing outside a sweep).
+
+    ``planned`` None: a run until converged."""
+
+    def __init__(self, planned: int | None) -> None:
+        self.counter = _runs_counter
+        self.planned = planned
+        self.done = 0
+        self.compiling = False
+
+    def __enter__(self) -> Self:
+        global _current_run
+        self._outer, _current_run = _current_run, self
+        if self.counter is not None and self.planned:
+            self.counter.add(planned=self.planned)
+        return self
+
+    def set_compiling(self, on: bool) -> None:
+        if self.counter is not None and on != self.compiling:
+            self.counter.add(compiling=1 if on else -1)
+        self.compiling = on
+
+    def add(self, n: int) -> None:
+        if self.counter is None or n <= 0:
+            return
+        self.done += n
+        off = -1 if self.compiling else 0  # the first iterations are done: compiled
+        self.compiling = False
+        if self.planned is None:
+            self.counter.add(done_until_converged=n, compiling=off)
+        else:
+            self.counter.add(done=n, compiling=off)
+
+    def __exit__(self, *exc: object) -> None:
+        global _current_run
+        _current_run = self._outer
+        if self.counter is not None:
+            done = -self.done
+            self.counter.add(done=0 if self.planned is None else done, planned=-(self.planned or 0),
+                             done_until_converged=done if self.planned is None else 0,
+                             compiling=-int(self.compiling))
+
+
+def _report(n: int) -> None:
+    """``n`` more iterations of this process's run (for the sweep's counter, if any)."""
+    if _current_run is not None:
+        _current_run.add(n)
 
 
 # ---------------------------------------------------------------------------------------------- compiling
@@ -378,7 +523,7 @@ def sample(
     feature_names: Sequence[str] | None = None,
     constraints: ConstraintSet | None = None,
     identified: Any = None,
-    stopping: "StoppingRule | None" = None,
+    stopping: StoppingRule | None = None,
     **overrides: Any,
 ) -> Posterior:
     """Sample the posterior with ``chains`` independent chains.
@@ -432,28 +577,31 @@ def sample(
         raise ValueError(f"chains: need at least 1 chain, got {n_chains}")
     seeds = np.random.SeedSequence(int(seed)).spawn(int(n_chains))
     n_jobs = min(int(n_chains), os.cpu_count() or 1) if n_jobs is None else max(1, min(int(n_jobs), int(n_chains)))
-    if sampler_needs_compiling():
-        if progress:
-            print(_COMPILE_NOTE, file=sys.stderr, flush=True)
-        if n_jobs > 1:
-            _compile_here(kernel)  # once here rather than once per worker
-    if stopping is not None:
-        return _sample_auto(kernel, stopping, seeds, n_jobs, progress, names, identified, int(seed))
     total = int(kernel.settings.iterations) * int(n_chains)
-    bar = progress_bar(total, progress)
-    t0 = time.perf_counter()
-    try:
-        if n_jobs == 1:
-            results = []
-            for s in seeds:
-                counter = _LocalCounter(bar)
-                results.append(run_chain(kernel, s, counter))
-        else:
-            results = _run_pool(kernel, seeds, n_jobs, bar)
-    finally:
-        if bar is not None:
-            bar.close()
-    runtime = time.perf_counter() - t0
+    with _RunShare(None if stopping is not None else total) as share:  # counted in a sweep's bar, if any
+        if sampler_needs_compiling():
+            share.set_compiling(True)  # until the first iterations are done
+            if progress:
+                print(COMPILE_NOTE, file=sys.stderr, flush=True)
+            if n_jobs > 1:
+                _compile_here(kernel)  # once here rather than once per worker
+                share.set_compiling(False)
+        if stopping is not None:
+            return _sample_auto(kernel, stopping, seeds, n_jobs, progress, names, identified, int(seed))
+        bar = progress_bar(total, progress)
+        t0 = time.perf_counter()
+        try:
+            if n_jobs == 1:
+                results = []
+                for s in seeds:
+                    counter = _LocalCounter(bar)
+                    results.append(run_chain(kernel, s, counter))
+            else:
+                results = _run_pool(kernel, seeds, n_jobs, bar)
+        finally:
+            if bar is not None:
+                bar.close()
+        runtime = time.perf_counter() - t0
     return Posterior.from_chains(results, kernel=kernel, seed=int(seed), runtime_s=runtime, feature_names=names,
                                  identified=identified)
 
@@ -498,7 +646,7 @@ class _LocalCounter:
         self.bar = bar
         self.value = 0
 
-    def get_lock(self) -> "_LocalCounter":
+    def get_lock(self) -> _LocalCounter:
         return self
 
     def __enter__(self) -> None:
@@ -507,6 +655,7 @@ class _LocalCounter:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.update(self.value - self._before)
+        _report(self.value - self._before)
 
 
 def progress_bar(total: int | None, enabled: bool) -> Any:
@@ -765,8 +914,10 @@ def _collect(futures: list[Any], counter: Any, bar: Any, last: int) -> list[Any]
     while not all(f.done() for f in futures):
         time.sleep(0.1)
         v = counter.value
-        if bar is not None and v != last:
-            bar.update(v - last)
+        if v != last:
+            if bar is not None:
+                bar.update(v - last)
+            _report(v - last)
             last = v
     try:
         outs = [f.result() for f in futures]
@@ -775,5 +926,6 @@ def _collect(futures: list[Any], counter: Any, bar: Any, last: int) -> list[Any]
                            "rerun with fewer --jobs or chains") from None
     if bar is not None:
         bar.update(counter.value - last)
+    _report(counter.value - last)
     return outs
 

@@ -1,0 +1,283 @@
+r"""``pbicrl benchmark icrl report``: the ICRL benchmark's table and figures from training run directories.
+
+Reads ``<runs>/<task>/<method>/seed<k>/`` written by :func:`pbicrl.experiments.icrl_benchmark.train_policy`
+(an ICL run in the same layout under the method ``icl``) and writes ``report.md``, ``results.json`` and one
+figure per task (``figures/icrl_<task>.png``: violation rate against feasible cumulative reward, methods as
+points with error bars of one standard deviation over seeds).
+
+Metrics, as the benchmark defines them (``shared/notes/icrl-benchmark.md`` section 2), per seed, from the
+**evaluation episodes of the stochastic policy** at the run's last evaluation (``eval.jsonl``: 10 episodes, 100
+for the pendulum, on fresh environments, the true cost):
+
+* violation rate = share of the episodes with at least one violating step (:math:`x` beyond the wall after a
+  step);
+* feasible cumulative reward = mean over the episodes of the reward summed over the steps before the first
+  violating step (the whole episode's reward when it never violates).
+
+A row gives mean :math:`\pm` standard deviation (``ddof=1``; 0 with one seed) over seeds. The same two metrics
+over the last 100 *training* episodes (``curve.jsonl``, the benchmark's own plotting window) are given beside
+them. A run counts as done when its ``done.json`` is there; runs still training are listed separately and are
+not in the table. Rows without any finished seed are listed as missing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["REPORT_METHODS", "build_report", "seed_metrics"]
+
+REPORT_METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
+_LABELS = {"ppo": "PPO (no constraint)", "ppo_lag_true": "PPO-Lagrangian, true cost",
+           "ppo_lag_inferred": "PPO-Lagrangian, pbicrl inferred cost", "icl": "ICL baseline"}
+
+
+def _read_jsonl(path: Path) -> list[dict[str, Any]]:
+    rows = []
+    if not path.is_file():
+        return rows
+    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        if line.strip():
+            try:
+                rows.append(json.loads(line))
+            except json.JSONDecodeError:
+                raise ValueError(f"runs: {path} line {i} is not JSON") from None
+    return rows
+
+
+def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
+    """The metrics of one seed's run directory (see the module docstring).
+
+    Returns
+    -------
+    dict
+        ``done`` (bool), ``steps``, ``violation_rate``, ``feasible_reward``, ``reward`` and ``eval_episodes`` of
+        the last evaluation (None without one), ``train_violation_rate`` and ``train_feasible_reward`` of the
+        last 100 training episodes (None without any), ``wall_s``, and ``inferred_cost`` (from ``config.json``;
+        ``ppo_lag_inferred`` runs).
+    """
+    d = Path(seed_dir)
+    evals = _read_jsonl(d / "eval.jsonl")
+    curve = _read_jsonl(d / "curve.jsonl")[-100:]
+    done = (d / "done.json").is_file()
+    info = json.loads((d / ("done.json" if done else "progress.json")).read_text(encoding="utf-8")) \
+        if (d / ("done.json" if done else "progress.json")).is_file() else {}
+    out: dict[str, Any] = {"done": done, "steps": info.get("steps"), "wall_s": info.get("wall_s"),
+                           "violation_rate": None, "feasible_reward": None, "reward": None, "eval_episodes": 0,
+                           "train_violation_rate": None, "train_feasible_reward": None}
+    if evals:
+        eps = evals[-1].get("episodes") or []
+        if not eps:
+            raise ValueError(f"runs: the last evaluation in {d / 'eval.jsonl'} has no episodes")
+        for k in ("constraint", "reward_nc", "reward"):
+            if any(k not in e for e in eps):
+                raise ValueError(f"runs: an episode of the last evaluation in {d / 'eval.jsonl'} has no {k!r}")
+        out.update(violation_rate=float(np.mean([e["constraint"] for e in eps])),
+                   feasible_reward=float(np.mean([e["reward_nc"] for e in eps])),
+                   reward=float(np.mean([e["reward"] for e in eps])), eval_episodes=len(eps),
+                   eval_steps=evals[-1].get("steps"))
+        if out["steps"] is None:
+            out["steps"] = evals[-1].get("steps")
+    if curve:
+        out.update(train_violation_rate=float(np.mean([e["constraint"] for e in curve])),
+                   train_feasible_reward=float(np.mean([e["reward_nc"] for e in curve])))
+    cfg = d / "config.json"
+    if cfg.is_file():
+        c = json.loads(cfg.read_text(encoding="utf-8"))
+        if "inferred_cost" in c:
+            out["inferred_cost"] = c["inferred_cost"]
+            out["inferred_run"] = c.get("inferred_run")
+    return out
+
+
+def _mean_sd(vals: Sequence[float]) -> tuple[float, float]:
+    a = np.asarray(vals, dtype=np.float64)
+    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
+
+
+def _fmt(ms: tuple[float, float] | None, digits: int, n: int = 2) -> str:
+    if ms is None:
+        return "-"
+    return f"{ms[0]:.{digits}f}" if n < 2 else f"{ms[0]:.{digits}f} ± {ms[1]:.{digits}f}"  # no sd of one seed
+
+
+def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
+                 tasks: Sequence[str] | None = None, methods: Sequence[str] = REPORT_METHODS,
+                 seeds_planned: int = 5, figures: bool = True) -> dict[str, Any]:
+    """Write ``report.md``, ``results.json`` and ``figures/icrl_<task>.png`` into ``out_dir``.
+
+    Parameters
+    ----------
+    runs : path
+        Root of the training runs (``<runs>/<task>/<method>/seed<k>``).
+    out_dir : path
+        Where the report goes (created).
+    tasks : sequence of str, optional
+        Tasks to report (default: all five, in the benchmark's order; absent ones are reported missing).
+    methods : sequence of str
+        Methods (rows) per task (default :data:`REPORT_METHODS`).
+    seeds_planned : int
+        Seeds each row should have (stated against the seeds found).
+    figures : bool
+        Draw the figures (needs matplotlib; without it the report says so).
+
+    Returns
+    -------
+    dict
+        What ``results.json`` holds: per task and method the per-seed metrics and the aggregates, and the lists
+        of missing rows and runs in progress.
+    """
+    from pbicrl._atomic import write_json, write_text
+    from pbicrl.envs.icrl_benchmark import ICRL_TASKS, icrl_task
+
+    root = Path(runs)
+    if not root.is_dir():
+        raise ValueError(f"runs: {root} is not a directory (the --out of the training runs)")
+    names = [icrl_task(t).name for t in (tasks or list(ICRL_TASKS))]
+    unknown = [m for m in methods if m not in REPORT_METHODS]
+    if unknown:
+        raise ValueError(f"methods: unknown {unknown}; expected some of {list(REPORT_METHODS)}")
+    if int(seeds_planned) != seeds_planned or seeds_planned < 1:
+        raise ValueError(f"seeds_planned: must be an integer >= 1, got {seeds_planned!r}")
+    results: dict[str, Any] = {"runs": str(root.resolve()), "tasks": {}, "missing": [], "in_progress": [],
+                               "metric_source": "last evaluation in eval.jsonl: stochastic-policy episodes, true cost"}
+    for t in names:
+        rows: dict[str, Any] = {}
+        for m in methods:
+            mdir = root / t / m
+            seeds = sorted((p for p in mdir.glob("seed*") if p.is_dir() and p.name[4:].isdigit()),
+                           key=lambda p: int(p.name[4:])) if mdir.is_dir() else []
+            per = {p.name: seed_metrics(p) for p in seeds}
+            done = {k: v for k, v in per.items() if v["done"] and v["violation_rate"] is not None}
+            for k, v in per.items():
+                if k not in done:
+                    results["in_progress"].append({"task": t, "method": m, "seed": k, "steps": v["steps"]})
+            agg: dict[str, Any] = {"seeds_done": len(done), "seeds_found": len(per), "per_seed": per}
+            if done:
+                for key in ("violation_rate", "feasible_reward", "reward", "train_violation_rate",
+                            "train_feasible_reward", "steps", "wall_s"):
+                    vals = [v[key] for v in done.values() if v.get(key) is not None]
+                    agg[key] = _mean_sd(vals) if vals else None
+                inf = [v["inferred_cost"] for v in done.values() if "inferred_cost" in v]
+                if inf:
+                    agg["inferred_boundary"] = inf[0].get("boundary")
+                    agg["inferred_mode"] = inf[0].get("mode")
+            else:
+                results["missing"].append({"task": t, "method": m,
+                                           "why": "no run directory" if not per else "no finished seed"})
+            rows[m] = agg
+        results["tasks"][t] = rows
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    fig_note = ""
+    drawn: dict[str, str] = {}
+    if figures:
+        try:
+            drawn = _figures(results, out / "figures")
+        except ImportError:
+            fig_note = 'Figures not drawn: matplotlib is not installed (pip install "pbicrl[plot]").'
+    write_text(out / "report.md", _markdown(results, names, methods, seeds_planned, drawn, fig_note))
+    write_json(out / "results.json", results)
+    return results
+
+
+def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str], seeds_planned: int,
+              drawn: dict[str, str], fig_note: str) -> str:
+    from pbicrl.envs.icrl_benchmark import icrl_task
+
+    intro = ("Per seed: violation rate (share of episodes with at least one step beyond the wall) and feasible "
+             "cumulative reward (reward before the first violating step) over the **evaluation episodes of the "
+             "stochastic policy** at the run's last evaluation (10 episodes, 100 for the pendulum; true cost). "
+             "Mean ± sd over the finished seeds (the value alone for one seed). `train` columns: the same metrics "
+             "over the last 100 training episodes (the benchmark's own plotting window).")
+    lines = ["# ICRL benchmark (Liu et al., ICLR 2023): results", "",
+             "Generated by `pbicrl benchmark icrl report` from the training runs in `" + res["runs"] + "`.", "",
+             intro, ""]
+    n_rows = len(names) * len(methods)
+    have = (f"**{n_rows - len(res['missing'])} of {n_rows} rows** ({len(names)} tasks x {len(methods)} methods) "
+            f"have at least one finished seed; {seeds_planned} seeds are planned per row.")
+    lines += [have, ""]
+    if res["missing"]:
+        lines += ["**Missing rows** (not in the table):", "", "| task | missing |", "|---|---|"]
+        for t in names:
+            miss = [m for m in res["missing"] if m["task"] == t]
+            if miss:
+                lines.append(f"| {t} | " + "; ".join(f"{_LABELS[m['method']]} ({m['why']})" for m in miss) + " |")
+        lines.append("")
+    else:
+        lines += ["No row is missing.", ""]
+    if res["in_progress"]:
+        lines += ["**Runs still training** (not counted): " + "; ".join(
+            f"{r['task']} / {r['method']} / {r['seed']} at {r['steps']} steps" for r in res["in_progress"]) + ".", ""]
+    header = ("| task | method | seeds | steps | violation rate | feasible reward | reward | train violation rate | "
+              "train feasible reward | wall time per seed (h) |")
+    lines += [header, "|---|---|---|---|---|---|---|---|---|---|"]
+    for t in names:
+        for m in methods:
+            a = res["tasks"][t][m]
+            if not a["seeds_done"]:
+                continue
+            steps = a["steps"][0] if a.get("steps") else math.nan
+            wall = a.get("wall_s")
+            n = a["seeds_done"]
+            lines.append(f"| {t} | {_LABELS[m]} | {n} of {seeds_planned} | {steps:,.0f} | "
+                         f"{_fmt(a['violation_rate'], 2, n)} | {_fmt(a['feasible_reward'], 0, n)} | "
+                         f"{_fmt(a['reward'], 0, n)} | {_fmt(a.get('train_violation_rate'), 2, n)} | "
+                         f"{_fmt(a.get('train_feasible_reward'), 0, n)} | "
+                         f"{'-' if not wall else f'{wall[0] / 3600:.2f}'} |")
+    thr = [(t, res["tasks"][t]["ppo_lag_inferred"]) for t in names if "ppo_lag_inferred" in res["tasks"][t]
+           and res["tasks"][t]["ppo_lag_inferred"].get("inferred_boundary")]
+    if thr:
+        lines += ["", "Inferred wall against the true one (the boundary the `ppo_lag_inferred` cost used):", "",
+                  "| task | mode | inferred boundary | true wall |", "|---|---|---|---|"]
+        for t, a in thr:
+            spec = icrl_task(t)
+            b = ", ".join(f"{k} {'<=' if spec.side == 'behind' else '>='} {v[0]:.3f}"
+                          for k, v in a["inferred_boundary"].items())
+            lines.append(f"| {t} | {a.get('inferred_mode')} | {b} | x {'<' if spec.side == 'behind' else '>'} "
+                         f"{spec.wall:g} |")
+    if drawn:
+        lines += [""] + [f"![{t}]({p})" for t, p in drawn.items()]
+    if fig_note:
+        lines += ["", fig_note]
+    return "\n".join(lines) + "\n"
+
+
+def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pbicrl._atomic import atomic_path
+
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    drawn = {}
+    for t, rows in res["tasks"].items():
+        pts = [(m, a) for m, a in rows.items() if a["seeds_done"]]
+        if not pts:
+            continue
+        fig, ax = plt.subplots(figsize=(5, 3.6))
+        for m, a in pts:
+            (vx, vs), (fx, fs) = a["violation_rate"], a["feasible_reward"]
+            ax.errorbar([vx], [fx], xerr=[vs], yerr=[fs], fmt="o", capsize=3,
+                        label=f"{_LABELS[m]} ({a['seeds_done']} seed{'s' if a['seeds_done'] > 1 else ''})")
+        ax.set_xlabel("constraint violation rate")
+        ax.set_ylabel("feasible cumulative reward")
+        ax.set_xlim(-0.05, 1.05)
+        ax.set_title(f"{t}: mean ± sd over seeds")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        name = f"icrl_{t}.png"
+        with atomic_path(fig_dir / name) as tmp:
+            fig.savefig(tmp, format="png", dpi=120)
+        plt.close(fig)
+        drawn[t] = f"figures/{name}"
+    return drawn

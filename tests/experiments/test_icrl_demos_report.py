@@ -1,0 +1,239 @@
+"""ICRL benchmark: ranked demonstrations (groups by what an episode did), ppo_lag_inferred, and the report."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("gymnasium")
+pytest.importorskip("mujoco")
+
+from pbicrl.experiments.icrl_benchmark import train_policy  # noqa: E402
+from pbicrl.experiments.icrl_demos import (  # noqa: E402
+    DemoRules,
+    classify_episode,
+    generate_ranked_demos,
+)
+from pbicrl.experiments.icrl_report import build_report, seed_metrics  # noqa: E402
+
+SMALL = dict(n_envs=2, n_steps=64, minibatch_size=64, n_epochs=1)
+
+
+def test_groups_follow_the_number_of_violating_steps():
+    rules = DemoRules.for_task("halfcheetah")
+    assert (rules.brief_max_steps, rules.through_min_steps) == (100, 500)
+    assert [classify_episode(n, rules) for n in (0, 1, 100, 101, 499, 500, 1000)] == [1, 2, 2, 0, 0, 3, 3]
+    assert DemoRules.for_task("pendulum") == DemoRules(10, 50)
+    with pytest.raises(ValueError, match="through_min_steps"):
+        DemoRules(10, 10)
+    with pytest.raises(ValueError, match="brief_max_steps"):
+        DemoRules(0, 5)
+
+
+@pytest.fixture(scope="module")
+def pendulum_policies(tmp_path_factory):
+    """Two barely trained pendulum policies (their episodes cross the wall x < -0.015 now and then)."""
+    out = tmp_path_factory.mktemp("runs")
+    a = train_policy("pendulum", "ppo_lag_true", 0, out, 128, config_overrides=SMALL, eval_every=1, eval_episodes=1,
+                     log=None)
+    b = train_policy("pendulum", "ppo", 1, out, 128, config_overrides=SMALL, eval_every=1, eval_episodes=1, log=None)
+    return a / "best.pt", b / "checkpoint.pt"
+
+
+def test_ranked_demos_label_by_behaviour_and_are_reproducible(pendulum_policies, tmp_path):
+    from pbicrl.inference.data import load_dataset
+
+    expert, unconstrained = pendulum_policies
+    rules = DemoRules(2, 4)
+    generate_ranked_demos("pendulum", expert, unconstrained, tmp_path / "d.npz", n_per_group=3, seed=5, rules=rules,
+                          max_episodes=400, command="test")
+    back = load_dataset(tmp_path / "d.npz")
+    assert list(back.group) == [1, 1, 1, 2, 2, 2, 3, 3, 3] and back.actions is None
+    assert back.states.shape[1] == 1 and back.feature_names == ("bias_reward",)
+    off = back.offsets
+    for i, g in enumerate(back.group):  # each stored episode's label is what its x did with the wall
+        n_v = int(np.sum(back.states[off[i]:off[i + 1], 0] < -0.015))
+        assert classify_episode(n_v, rules) == g
+    side = json.loads((tmp_path / "d.json").read_text())
+    assert side["command"] == "test" and side["policies"]["expert"]["steps"] == 128
+    assert len(side["policies"]["expert"]["sha256"]) == 64
+    assert side["policies"]["handover"]["sha256"] == side["policies"]["unconstrained"]["sha256"]  # the default
+    assert side["groups"]["2"]["violating_steps_max"] <= 2 and side["groups"]["3"]["violating_steps_min"] >= 4
+    assert sum(e["kept"] for e in side["episodes"]) == 9
+    assert side["file_sha256"] and side["file_bytes"] == (tmp_path / "d.npz").stat().st_size
+    _, again = generate_ranked_demos("pendulum", expert, unconstrained, None, n_per_group=3, seed=5, rules=rules,
+                                     max_episodes=400, command="test")
+    assert again["episodes"] == side["episodes"]  # the same seed: the same episodes
+    _, other = generate_ranked_demos("pendulum", expert, unconstrained, None, handover=expert, n_per_group=3,
+                                     seed=5, rules=rules, max_episodes=400)
+    assert other["policies"]["handover"]["sha256"] == side["policies"]["expert"]["sha256"]
+    switch = [e for e in other["episodes"] if e["source"] == "switch"]
+    assert switch and switch != [e for e in side["episodes"] if e["source"] == "switch"][:len(switch)]
+
+
+def test_unfilled_groups_fail_and_write_nothing(pendulum_policies, tmp_path):
+    expert, unconstrained = pendulum_policies
+    with pytest.raises(ValueError, match="groups: not filled after 3 episodes"):
+        generate_ranked_demos("pendulum", expert, unconstrained, tmp_path / "d.npz", n_per_group=50,
+                              max_episodes=3)
+    assert not list(tmp_path.iterdir())
+    with pytest.raises(ValueError, match="sources"):
+        generate_ranked_demos("pendulum", expert, unconstrained, None, sources=["teleport"])
+    with pytest.raises(ValueError, match="policy: .* is not a file"):
+        generate_ranked_demos("pendulum", tmp_path / "none.pt", unconstrained, None)
+
+
+def _write_run(path, names, ind, wp, params, constraints, data=None):
+    path.mkdir(parents=True)
+    np.savez(path / "chains.npz", indicators=np.asarray(ind, dtype=np.int8)[None],
+             penalty_weights=np.asarray(wp, dtype=np.float64)[None], log_likelihood=np.zeros((1, len(ind))),
+             feature_names=np.array(names), parameters=np.asarray(params, dtype=np.float64)[None],
+             parameter_names=np.array(["wall.threshold"]))
+    summary = {"schema_version": 1, "method": "pbicrl", "feature_names": list(names),
+               "settings": {"constraints": constraints}}
+    if data is not None:
+        summary["extra"] = {"data": {"path": str(data)}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    return path
+
+
+def test_ppo_lag_inferred_trains_on_the_conservative_boundary(tmp_path):
+    import gymnasium as gym
+
+    from pbicrl.envs import register_envs
+    from pbicrl.envs.inferred_cost import InferredConstraintCost
+    from pbicrl.inference.data import Dataset
+
+    cons = [{"family": "axis_halfspace", "dims": [0], "name": "wall", "direction": "<="}]
+    # the good demonstrations reach x = -0.004; a bad one goes to -0.03 (pendulum wall: x < -0.015)
+    x = np.array([0.0, -0.004, 0.002, 0.0, -0.02, -0.03])
+    Dataset(features=np.ones((6, 1)), offsets=np.array([0, 3, 6]), group=np.array([1, 2]), states=x[:, None],
+            feature_names=("bias_reward",)).save(tmp_path / "demos.npz")
+    args = (("bias_reward", "wall"), [[0, 1]] * 3, [[0, -1.0]] * 3, [[-0.03], [-0.02], [0.005]], cons)
+    run = _write_run(tmp_path / "inf", *args, data=tmp_path / "demos.npz")
+    register_envs()
+    icc = InferredConstraintCost(gym.make("pbicrl/BiasedPendulum-v0"), run)  # the task's own features and x
+    assert icc.mode == "conservative"
+    edge = float(np.nextafter(-0.004, -1))
+    assert icc.conservative_location["wall"][0] == edge  # just beyond the good demonstrations' reach
+    np.testing.assert_array_equal(icc.costs(states=[[-0.005], [-0.004]]), [1.0, 0.0])
+
+    out = tmp_path / "runs"
+    d = train_policy("pendulum", "ppo_lag_inferred", 0, out, 128, config_overrides=SMALL, eval_every=1,
+                     eval_episodes=1, log=None, inferred_run=run)
+    cfg = json.loads((d / "config.json").read_text())
+    ic = cfg["inferred_cost"]
+    assert ic["mode"] == "conservative" and ic["boundary"] == {"wall": [edge]} and len(ic["summary_sha256"]) == 64
+    assert "good demonstrations" in cfg["inferred_boundary_source"]["wall"]
+    assert (d / "done.json").exists()
+    rows = [json.loads(s) for s in (d / "curve.jsonl").read_text().splitlines()]
+    assert all(r["constraint"] == int(r["x_min"] < -0.015) for r in rows)  # the metrics keep the true wall
+    # another posterior on the same run directory is refused
+    s = json.loads((run / "summary.json").read_text())
+    s["note"] = "changed"
+    (run / "summary.json").write_text(json.dumps(s))
+    with pytest.raises(ValueError, match="other settings.*inferred_cost"):
+        train_policy("pendulum", "ppo_lag_inferred", 0, out, 256, config_overrides=SMALL, log=None,
+                     inferred_run=run)
+    # without the run's dataset the boundary would be the posterior's highest draw (0.005: the start): refused
+    lost = _write_run(tmp_path / "lost", *args, data=tmp_path / "gone.npz")
+    with pytest.raises(ValueError, match=r"not from the good demonstrations \(boundary \{'wall': 0.005\}\)"):
+        train_policy("pendulum", "ppo_lag_inferred", 2, out, 128, log=None, inferred_run=lost)
+    assert not (out / "pendulum" / "ppo_lag_inferred" / "seed2").exists()
+    with pytest.raises(ValueError, match="inferred_run: method ppo_lag_inferred needs"):
+        train_policy("pendulum", "ppo_lag_inferred", 1, out, 128, log=None)
+    with pytest.raises(ValueError, match="inferred_run: only for"):
+        train_policy("pendulum", "ppo", 1, out, 128, log=None, inferred_run=run)
+
+
+def _fake_seed(d, evals, curve=(), done=True, steps=1000, wall_s=7200.0, config=None):
+    d.mkdir(parents=True)
+    rows = [{"steps": steps, "episodes": [{"reward": r, "reward_nc": rnc, "constraint": c} for r, rnc, c in ev]}
+            for ev in evals]
+    (d / "eval.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (d / "curve.jsonl").write_text("".join(json.dumps({"reward": r, "reward_nc": rnc, "constraint": c}) + "\n"
+                                           for r, rnc, c in curve))
+    (d / ("done.json" if done else "progress.json")).write_text(json.dumps({"steps": steps, "wall_s": wall_s}))
+    if config is not None:
+        (d / "config.json").write_text(json.dumps(config))
+
+
+def test_report_on_synthetic_runs(tmp_path):
+    runs = tmp_path / "runs"
+    hc = runs / "halfcheetah"
+    old = [(5.0, 5.0, 0)]  # an earlier evaluation: not used
+    _fake_seed(hc / "ppo" / "seed0", [old, [(100.0, 10.0, 1), (80.0, 20.0, 1)]], curve=[(1.0, 0.5, 1)] * 3)
+    _fake_seed(hc / "ppo" / "seed1", [[(90.0, 30.0, 1), (70.0, 70.0, 0)]])
+    _fake_seed(hc / "ppo_lag_true" / "seed0", [[(50.0, 50.0, 0), (60.0, 60.0, 0)]])
+    _fake_seed(hc / "ppo_lag_inferred" / "seed0", [[(1.0, 1.0, 0)]], done=False, steps=500,
+               config={"inferred_cost": {"mode": "conservative", "boundary": {"wall": [-0.4]}}})
+    m = seed_metrics(hc / "ppo" / "seed0")
+    assert m["violation_rate"] == 1.0 and m["feasible_reward"] == 15.0 and m["train_feasible_reward"] == 0.5
+    res = build_report(runs, tmp_path / "out", tasks=["halfcheetah", "ant"], seeds_planned=3)
+    ppo = res["tasks"]["halfcheetah"]["ppo"]
+    assert ppo["seeds_done"] == 2
+    assert ppo["violation_rate"][0] == pytest.approx(0.75)  # seeds: 1.0 and 0.5
+    assert ppo["feasible_reward"] == pytest.approx((32.5, np.std([15.0, 50.0], ddof=1)))
+    assert res["tasks"]["halfcheetah"]["ppo_lag_true"]["violation_rate"] == (0.0, 0.0)
+    missing = {(r["task"], r["method"]) for r in res["missing"]}
+    assert ("halfcheetah", "ppo_lag_inferred") in missing and ("halfcheetah", "icl") in missing
+    assert {("ant", m) for m in ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")} <= missing
+    assert res["in_progress"] == [{"task": "halfcheetah", "method": "ppo_lag_inferred", "seed": "seed0", "steps": 500}]
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "**2 of 8 rows** (2 tasks x 4 methods)" in md and "**Missing rows**" in md
+    assert "| halfcheetah | PPO-Lagrangian, pbicrl inferred cost (no finished seed); ICL baseline (no run directory) |" in md
+    assert "at 500 steps" in md
+    assert "| halfcheetah | PPO (no constraint) | 2 of 3 | 1,000 | 0.75 ± 0.35 | 32 ± 25 |" in md
+    assert "| halfcheetah | PPO-Lagrangian, true cost | 1 of 3 | 1,000 | 0.00 | 55 |" in md  # one seed: no sd
+    pytest.importorskip("matplotlib")
+    assert (tmp_path / "out" / "figures" / "icrl_halfcheetah.png").stat().st_size > 1000
+    assert "![halfcheetah](figures/icrl_halfcheetah.png)" in md
+
+
+def test_report_refuses_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="runs: .* is not a directory"):
+        build_report(tmp_path / "none", tmp_path / "out")
+    (tmp_path / "r" / "halfcheetah" / "ppo" / "seed0").mkdir(parents=True)
+    (tmp_path / "r" / "halfcheetah" / "ppo" / "seed0" / "eval.jsonl").write_text("{not json\n")
+    with pytest.raises(ValueError, match="line 1 is not JSON"):
+        build_report(tmp_path / "r", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(ValueError, match="methods: unknown"):
+        build_report(tmp_path / "r", tmp_path / "out", methods=["sac"])
+
+
+def test_cli_benchmark_icrl(tmp_path, capsys):
+    from pbicrl.cli.app import main
+
+    runs = tmp_path / "runs"
+    _fake_seed(runs / "pendulum" / "ppo" / "seed0", [[(1.0, 1.0, 0)]])
+    assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--out", str(tmp_path / "o"), "--tasks",
+                 "pendulum", "--no-figures"]) == 0
+    assert "missing rows: 3" in capsys.readouterr().out
+    assert main(["benchmark", "icrl", "train", "--out", str(runs), "--run", "pendulum:ppo_lag_inferred:0:100"]) == 2
+    assert "--inferred-run" in capsys.readouterr().err
+
+
+def test_shipped_halfcheetah_demos_match_their_record_and_rules():
+    import hashlib
+
+    import pbicrl
+    from pbicrl.inference.data import shipped_dir
+
+    path = shipped_dir() / "icrl_halfcheetah.npz"
+    rec = json.loads(path.with_suffix(".json").read_text())
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == rec["file_sha256"]
+    ds = pbicrl.load_dataset("icrl_halfcheetah")
+    assert ds.env_id == "pbicrl/BlockedHalfCheetah-v0" and ds.feature_names == ("speed", "action_sq_norm")
+    assert list(np.bincount(ds.group)[1:]) == [100, 100, 100]
+    rules = DemoRules(rec["rules"]["brief_max_steps"], rec["rules"]["through_min_steps"])
+    off, x = ds.offsets, ds.states[:, 0]
+    n_v = np.array([np.sum(x[off[i]:off[i + 1]] < -3.0) for i in range(ds.n_trajectories)])
+    assert [classify_episode(n, rules) for n in n_v] == list(ds.group)  # labelled by what each episode did
+    assert n_v[ds.group == 3].min() >= 500  # group 3 really runs through the wall
+    dx = np.abs(np.diff(x))  # the stored speed is |dx| / dt (dt 0.05) of the stored x, within an episode
+    inner = np.setdiff1d(np.arange(1, len(x)), off[1:-1])
+    np.testing.assert_array_equal(ds.features[inner, 0], dx[inner - 1] / 0.05)
