@@ -69,8 +69,18 @@ from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.preferences import Preferences
 from pbicrl.inference.priors import IndicatorPrior, WeightPrior
 from pbicrl.inference.samplers import SamplerSettings, _mcmc
-from pbicrl.inference.samplers.bundles import (Adaptation, ConstraintArrays, Draws, MapTracker, Model, Moves,
-                                               Position, Randoms, Schedule, Scratch)
+from pbicrl.inference.samplers.bundles import (
+    Adaptation,
+    ConstraintArrays,
+    Draws,
+    MapTracker,
+    Model,
+    Moves,
+    Position,
+    Randoms,
+    Schedule,
+    Scratch,
+)
 from pbicrl.inference.samplers.driver import run_chain
 from pbicrl.inference.samplers.kernels import Kernel
 
@@ -170,7 +180,7 @@ def _capture_loop_args(kernel: Kernel) -> tuple[dict[str, Any], int]:
     seen: list[tuple[dict[str, Any], int]] = []
     real: Callable[..., Any] = _mcmc.advance
 
-    def spy(sched, pos, lik, cons, moves, model, rnd, adapt, draws, best, counts, scratch):  # noqa: ANN001
+    def spy(sched, pos, lik, cons, moves, model, rnd, adapt, draws, best, counts, scratch):
         seen.append(_flatten({"schedule": sched, "position": pos, "constraints": cons, "moves": moves,
                               "model": model, "adaptation": adapt, "draws": draws, "best": best,
                               "scratch": scratch}, counts), rnd.zt.shape[1])
