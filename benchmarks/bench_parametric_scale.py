@@ -100,7 +100,7 @@ def main() -> None:
     cs = ConstraintSet((AxisHalfspace(0, name="wall"),), ds)
     kern = build_kernel(lik, constraints=cs, iterations=10)
     A = kern._param_arrays()
-    kargs = lik.kernel_args()
+    kargs = lik.kernel_bundle()
     col = np.empty(ds.n_trajectories)
     ind = np.asarray(post.indicators, dtype=float)
     wp = np.asarray(post.penalty_weights, dtype=float)
@@ -116,7 +116,7 @@ def main() -> None:
                      A["sorted_vals"], A["states"], A["offsets"], A["inv_len"], col, False)
         a = np.ascontiguousarray(lik.scaled_features_T.T @ (lik.nominal_weights + eff[:dk]) + eff[dk] * col)
         prof.append({"penalty": float(eff[dk]), "theta": float(theta[0]), "spread": float(np.ptp(a)),
-                     "ms_eval": 1e3 * _timed(lambda: _kernels.loglik(a, *kargs), 0.2),
+                     "ms_eval": 1e3 * _timed(lambda: _kernels.loglik(a, kargs), 0.2),
                      "ms_recount": 1e3 * _timed(lambda: param_column(
                          0, theta, lik.beta, A["fam"], A["sign"], A["poff"], A["dims_off"], A["dims"],
                          A["sorted_vals"], A["states"], A["offsets"], A["inv_len"], col, False), 0.2)})

@@ -189,12 +189,12 @@ def _posterior_run(n: int, kind: str, iterations: int, chains: int, jobs: int, s
 
     lik = _large_likelihood(n, kind, seed)
     a = np.ascontiguousarray(lik.scaled_features_T.T @ (lik.nominal_weights + np.array([0.0, -5.0, -10.0, 0.0])))
-    args = lik.kernel_args()
-    _kernels.loglik(a, *args)
+    args = lik.kernel_bundle()
+    _kernels.loglik(a, args)
     c = time.process_time()
     reps = 0
     while reps < 3 or time.process_time() - c < 0.5:
-        _kernels.loglik(a, *args)
+        _kernels.loglik(a, args)
         reps += 1
     per_eval = (time.process_time() - c) / reps
     t, c = time.perf_counter(), time.process_time()
@@ -244,10 +244,10 @@ def section_large(args: argparse.Namespace) -> list[dict[str, Any]]:
     # the paper's all-pairs likelihood on the same data: one evaluation, timed
     lik = _large_likelihood(n, "pairwise")
     a = np.ascontiguousarray(lik.scaled_features_T.T @ (lik.nominal_weights + np.array([0.0, -5.0, -10.0, 0.0])))
-    kargs = lik.kernel_args()
-    _kernels.loglik(a[:300], *_large_likelihood(100, "pairwise").kernel_args())  # compile on a small case
+    kargs = lik.kernel_bundle()
+    _kernels.loglik(a[:300], _large_likelihood(100, "pairwise").kernel_bundle())  # compile on a small case
     c = time.process_time()
-    _kernels.loglik(a, *kargs)
+    _kernels.loglik(a, kargs)
     pw = time.process_time() - c
     evals_per_ess = (r["evals"] or 0) / r["ess_min"] if r["ess_min"] else None
     rows.append({"likelihood": "pairwise (all pairs)", "pairs": int(lik.preferences.n_pairs), "cpu_s_per_eval": pw,

@@ -215,11 +215,12 @@ def test_python_and_compiled_densities_agree(name):
 
 
 def test_kind_codes_match_compiled_kernel():
+    from pbicrl.inference import codes
     from pbicrl.inference.priors import _CODES
     from pbicrl.inference.samplers import _priorkern as pk
 
-    assert _CODES == {"flat": pk.KIND_FLAT, "normal": pk.KIND_NORMAL, "improper": pk.KIND_IMPROPER,
-                      "student_t": pk.KIND_STUDENT_T}
+    assert _CODES == {"flat": codes.PRIOR_FLAT, "normal": codes.PRIOR_NORMAL, "improper": codes.PRIOR_IMPROPER,
+                      "student_t": codes.PRIOR_STUDENT_T}
     assert WeightPrior().resolve(np.ones((3, 2)) * [[1], [2], [3]]).as_arrays()[1].shape == (2, pk.N_PRIOR_PARAMS)
 
 

@@ -84,10 +84,7 @@ if TYPE_CHECKING:
     from pbicrl.inference.likelihood import PreferenceLikelihood
 
 __all__ = ["to_arviz", "to_netcdf", "pointwise_loglik", "pointwise_log_likelihood", "run_likelihood",
-           "run_margins", "MOVE_CODES", "POINTWISE_DRAWS", "TOTAL_LOG_LIKELIHOOD"]
-
-MOVE_CODES = MOVES
-"""Per-draw move type codes of ``sample_stats.move``: :data:`pbicrl.inference.codes.MOVES`, the same object."""
+           "run_margins", "POINTWISE_DRAWS", "TOTAL_LOG_LIKELIHOOD"]
 
 TOTAL_LOG_LIKELIHOOD = "total_log_likelihood"
 """Name of the total log-likelihood in ``sample_stats`` (``log_likelihood`` there would be read by ArviZ as the
@@ -493,7 +490,7 @@ def _sample_stats(post: Any) -> dict[str, tuple[NDArray, dict[str, Any]]]:
     move = getattr(post, "move", None)
     if move is not None and np.shape(move) == ll.shape:
         stats["move"] = (np.asarray(move, dtype=np.int8),
-                         {"flag_values": list(MOVE_CODES), "flag_meanings": " ".join(MOVE_CODES.values())})
+                         {"flag_values": list(MOVES), "flag_meanings": " ".join(MOVES.values())})
     acc = getattr(post, "accepted", None)
     if acc is not None and np.shape(acc) == ll.shape:
         stats["accepted"] = (np.asarray(acc, dtype=bool), {"long_name": "the move that produced the draw was accepted"})

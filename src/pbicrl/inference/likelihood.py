@@ -218,11 +218,10 @@ class PreferenceLikelihood:
         return p.group_items, p.group_offsets, p.group_margins, width, p.margin_offsets
 
     def kernel_args(self) -> tuple:
-        """Everything :func:`pbicrl.inference.likelihood_kernels.loglik` takes after the returns: ``loglik(a, *lik.kernel_args())``.
+        """The fields of :class:`pbicrl.inference.likelihood_kernels.LikelihoodArrays` in order (:meth:`kernel_bundle`).
 
         ``(kind code, the pairwise arrays, five pairwise scratch buffers, group members, group offsets, margin
-        matrix, grouped scratch, margin offsets)``; the compiled sampler splices the same tuple into its loop. A
-        ranked layout (``Preferences.ranked``) gets the kind code of :func:`pbicrl.inference.likelihood_kernels.ranked_loglik`.
+        matrix, grouped scratch, margin offsets)``. A ranked layout (``Preferences.ranked``) gets the kind code of :func:`pbicrl.inference.likelihood_kernels.ranked_loglik`.
         """
         p = self.preferences
         n = self._scratch_size
@@ -253,11 +252,11 @@ class PreferenceLikelihood:
         a = np.zeros(self.mean_features.shape[0])
         for j in range(w.size):  # fixed summation order (no BLAS), see samplers.kernels._returns
             a += w[j] * self.scaled_features_T[j]
-        return self.power * float(_kernels.loglik(a, *self.kernel_args()))
+        return self.power * float(_kernels.loglik(a, self.kernel_bundle()))
 
     def from_scaled_returns(self, a: ArrayLike) -> float:
         """Log-likelihood for given scaled returns :math:`a` (N,)."""
-        return self.power * float(_kernels.loglik(np.ascontiguousarray(a, dtype=np.float64), *self.kernel_args()))
+        return self.power * float(_kernels.loglik(np.ascontiguousarray(a, dtype=np.float64), self.kernel_bundle()))
 
 
 def _aligned(n: int, align: int = 64) -> NDArray[np.float64]:

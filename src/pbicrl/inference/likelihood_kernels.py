@@ -35,11 +35,12 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
-from pbicrl.inference.codes import LIK_GROUPED, LIK_PAIRWISE, LIK_RANKED
+from pbicrl.inference.codes import LIK_GROUPED, LIK_RANKED
 
 __all__ = ["block_loglik", "pairs_loglik", "pairs_loglik_bound", "total_loglik", "ranked_loglik", "softplus",
-           "grouped_loglik", "group_term", "loglik", "LikelihoodArrays", "KIND_PAIRWISE", "KIND_GROUPED", "KIND_RANKED"]
+           "grouped_loglik", "group_term", "loglik", "LikelihoodArrays"]
 
 _CHUNK = 512  # 2**512 < max double: a flushed product of (1 + t <= 2) factors never overflows
 _SPREAD = 600.0  # returns within +-300 of the centre and margins within +-300: every factor in e^{+-600}
@@ -526,10 +527,6 @@ def ranked_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, moff: np.
 # 10x finer steps, and within 1e-10 of scipy's adaptive quadrature of the defining integral (the tests).
 # Typical cost: 4-6 Newton steps and ~36 nodes, each one exp (or expm1) per item: O(n Q).
 
-KIND_PAIRWISE = LIK_PAIRWISE  # PreferenceLikelihood(kind="pairwise"): paper Eq. 7 over blocks and explicit pairs
-KIND_GROUPED = LIK_GROUPED  # PreferenceLikelihood(kind="grouped"): grouped Plackett-Luce
-KIND_RANKED = LIK_RANKED  # PreferenceLikelihood(kind="pairwise") over Preferences.ranked: ranked_loglik
-
 _LN2 = math.log(2.0)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 _G_TINY = -25.0  # u below: v < 1.4e-11 and L(u) = u - v/2 to 1e-22
@@ -747,43 +744,52 @@ def _pl_h_at(delta: float, rho: float, u0: np.ndarray, b: np.ndarray, n_mid: int
     return h + ser + (lacc + math.log(prod))
 
 
+def _h_at(s0: float, delta: float, hargs: tuple) -> float:
+    r""":math:`h(s_0 + \delta)` of a group: per item (``hargs`` = the 5 arguments of :func:`_pl_h_at` after
+    :math:`\rho`) or from binned moments (the 6 arguments of :func:`_gb_h` after ``s``). Compiled only."""
+    raise NotImplementedError("compiled only")
+
+
+@overload(_h_at, inline="always")
+def _h_at_impl(s0, delta, hargs):  # Numba types, at compile time
+    if len(hargs) == 5:
+        def per_item(s0, delta, hargs):
+            return _pl_h_at(delta, math.exp(delta), *hargs)
+        return per_item
+
+    def binned(s0, delta, hargs):
+        return _gb_h(s0 + delta, *hargs)[0]
+    return binned
+
+
 @njit(cache=True, error_model="numpy")
-def _pl_node(comp: bool, u: float, s0: float, sig: float, f0: float, beta: float, gamma: float, u0: np.ndarray,
-             b: np.ndarray, n_mid: int, n_low: int, sum_low: float) -> float:
-    """Log of the mapped integrand at ``u`` relative to the mode (``-inf`` beyond the window or the last edge)."""
+def _node(comp: bool, u: float, s0: float, sig: float, f0: float, beta: float, gamma: float, hargs: tuple) -> float:
+    """Log of the mapped integrand at ``u`` relative to the mode ``f0`` (``-inf`` beyond the window or the last
+    edge): the direct form, or the complement with ``comp``; :math:`h` from :func:`_h_at`."""
     eg = math.exp(-gamma * u)
     delta = sig * ((1.0 - beta) * u + beta * (1.0 - eg) / gamma)
     if abs(delta) > _G_WINDOW:
         return -np.inf
-    hh = _pl_h_at(delta, math.exp(delta), u0, b, n_mid, n_low, sum_low)
+    hh = _h_at(s0, delta, hargs)
     s = s0 + delta
     if comp:
         if not hh < 0.0:
             return -np.inf  # 1 - e^h rounds to 0
-        val = s - math.exp(s) + math.log(-math.expm1(hh))
-    else:
-        val = s - math.exp(s) + hh
-    return val - f0 + math.log((1.0 - beta) + beta * eg)
+        return s - math.exp(s) + math.log(-math.expm1(hh)) - f0 + math.log((1.0 - beta) + beta * eg)
+    return s - math.exp(s) + hh - f0 + math.log((1.0 - beta) + beta * eg)
 
 
 @njit(cache=True, error_model="numpy")
-def _pl_integral(comp: bool, x: np.ndarray, s0: float, sig: float, beta: float, gamma: float, step: float,
-                 step_max: float, accept: float, u0: np.ndarray, b: np.ndarray) -> float:
-    """Log of the direct (``comp`` False) or complement integral: mapped trapezoid rule around ``s0``, halving.
+def _trapezoid(comp: bool, s0: float, sig: float, f0: float, beta: float, gamma: float, step: float,
+               step_max: float, accept: float, hargs: tuple) -> float:
+    """The integral of the direct (``comp`` False) or complement integrand over ``sig e^{f0}``: mapped
+    trapezoid rule around the mode ``s0``, halving (:func:`_node`; per item or binned by ``hargs``).
 
     Level 0 walks outwards with step ``H`` until the integrand is ``_G_DROP`` below the mode and is checked
     against the rule with step ``2H`` on every other node; each further level adds the midpoints. The rule
     converges geometrically (the error roughly squares when the step halves), so once two levels agree to
     ``accept`` the finer one is accurate to about its square.
     """
-    n_mid, n_low, sum_low = _pl_prepare(x, s0, u0, b)
-    h0 = _pl_h_at(0.0, 1.0, u0, b, n_mid, n_low, sum_low)
-    if comp:
-        if not h0 < 0.0:
-            return -np.inf
-        f0 = s0 - math.exp(s0) + math.log(-math.expm1(h0))
-    else:
-        f0 = s0 - math.exp(s0) + h0
     H = min(step, step_max / sig)  # level-0 step in u (units of sigma)
     acc = 1.0  # the node at the mode: e^{f0 - f0} m'(0), m'(0) = 1
     even = 1.0  # the nodes of the rule with step 2H
@@ -793,7 +799,7 @@ def _pl_integral(comp: bool, x: np.ndarray, s0: float, sig: float, beta: float, 
         direction = 1.0 if side == 0 else -1.0
         k = 1
         while k <= _G_MAX_NODES:
-            e = math.exp(_pl_node(comp, direction * k * H, s0, sig, f0, beta, gamma, u0, b, n_mid, n_low, sum_low))
+            e = math.exp(_node(comp, direction * k * H, s0, sig, f0, beta, gamma, hargs))
             acc += e
             if k % 2 == 0:
                 even += e
@@ -806,21 +812,35 @@ def _pl_integral(comp: bool, x: np.ndarray, s0: float, sig: float, beta: float, 
             kl = k
     prev = H * acc
     if abs(prev - 2.0 * H * even) <= accept * prev:
-        return f0 + math.log(sig * prev)
+        return prev
     h = H
     n_new = kl + kr
     for _ in range(_G_MAX_LEVELS):
         h *= 0.5
         for i in range(n_new):
-            acc += math.exp(_pl_node(comp, -kl * H + (2 * i + 1) * h, s0, sig, f0, beta, gamma, u0, b,
-                                     n_mid, n_low, sum_low))
+            acc += math.exp(_node(comp, -kl * H + (2 * i + 1) * h, s0, sig, f0, beta, gamma, hargs))
         cur = h * acc
         if abs(cur - prev) <= accept * cur:
-            prev = cur
-            break
+            return cur
         prev = cur
         n_new *= 2
-    return f0 + math.log(sig * prev)
+    return prev
+
+
+@njit(cache=True, error_model="numpy")
+def _pl_integral(comp: bool, x: np.ndarray, s0: float, sig: float, beta: float, gamma: float, step: float,
+                 step_max: float, accept: float, u0: np.ndarray, b: np.ndarray) -> float:
+    """Log of the direct (``comp`` False) or complement integral of a group's items ``x``: :func:`_trapezoid`."""
+    n_mid, n_low, sum_low = _pl_prepare(x, s0, u0, b)
+    h0 = _pl_h_at(0.0, 1.0, u0, b, n_mid, n_low, sum_low)
+    if comp:
+        if not h0 < 0.0:
+            return -np.inf
+        f0 = s0 - math.exp(s0) + math.log(-math.expm1(h0))
+    else:
+        f0 = s0 - math.exp(s0) + h0
+    return f0 + math.log(sig * _trapezoid(comp, s0, sig, f0, beta, gamma, step, step_max, accept,
+                                          (u0, b, n_mid, n_low, sum_low)))
 
 
 @njit(cache=True, error_model="numpy")
@@ -1066,67 +1086,9 @@ def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) 
     if not (f0 + math.log(sig) + _LOG_SQRT_2PI < _G_SWITCH):
         return np.nan
     beta, gamma = _G_MAP_DIRECT
-    lp = f0 + math.log(sig * _gb_trapezoid(False, s0, sig, f0, beta, gamma, shift, cen, mom, nb, T, f))
+    lp = f0 + math.log(sig * _trapezoid(False, s0, sig, f0, beta, gamma, _G_STEP, _G_STEP_MAX, _G_ACCEPT,
+                                         (shift, cen, mom, nb, T, f)))
     return lp if lp <= math.log(0.9) else np.nan
-
-
-@njit(cache=True, error_model="numpy")
-def _gb_trapezoid(comp: bool, s0: float, sig: float, f0: float, beta: float, gamma: float, shift: float,
-                  cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray, f: np.ndarray) -> float:
-    """The mapped trapezoid rule of :func:`_pl_integral` on binned moments: the integral over ``sig e^{f0}``."""
-    H = min(_G_STEP, _G_STEP_MAX / sig)
-    acc = 1.0
-    even = 1.0
-    kr = 0
-    kl = 0
-    for side in range(2):
-        direction = 1.0 if side == 0 else -1.0
-        k = 1
-        while k <= _G_MAX_NODES:
-            e = math.exp(_gb_node(direction * k * H, s0, sig, f0, beta, gamma, shift, cen, mom, nb, T, f, comp))
-            acc += e
-            if k % 2 == 0:
-                even += e
-            if e < _G_EDROP:
-                break
-            k += 1
-        if side == 0:
-            kr = k
-        else:
-            kl = k
-    prev = H * acc
-    if abs(prev - 2.0 * H * even) > _G_ACCEPT * prev:
-        h_ = H
-        n_new = kl + kr
-        for _ in range(_G_MAX_LEVELS):
-            h_ *= 0.5
-            for i in range(n_new):
-                acc += math.exp(_gb_node(-kl * H + (2 * i + 1) * h_, s0, sig, f0, beta, gamma, shift, cen, mom, nb,
-                                         T, f, comp))
-            cur = h_ * acc
-            if abs(cur - prev) <= _G_ACCEPT * cur:
-                prev = cur
-                break
-            prev = cur
-            n_new *= 2
-    return prev
-
-
-@njit(cache=True, error_model="numpy")
-def _gb_node(u: float, s0: float, sig: float, f0: float, beta: float, gamma: float, shift: float, cen: np.ndarray,
-             mom: np.ndarray, nb: int, T: np.ndarray, f: np.ndarray, comp: bool = False) -> float:
-    """:func:`_pl_node` with :math:`h` from binned moments (direct form, or the complement with ``comp``)."""
-    eg = math.exp(-gamma * u)
-    delta = sig * ((1.0 - beta) * u + beta * (1.0 - eg) / gamma)
-    if abs(delta) > _G_WINDOW:
-        return -np.inf
-    s = s0 + delta
-    hh = _gb_h(s, shift, cen, mom, nb, T, f)[0]
-    if comp:
-        if not hh < 0.0:
-            return -np.inf  # 1 - e^h rounds to 0
-        return s - math.exp(s) + math.log(-math.expm1(hh)) - f0 + math.log((1.0 - beta) + beta * eg)
-    return s - math.exp(s) + hh - f0 + math.log((1.0 - beta) + beta * eg)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1170,7 +1132,7 @@ def _gb_comp(shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
     s0 = s
     sig = 1.0 / math.sqrt(-d2) if d2 < 0.0 else 1.0
     beta, gamma = _G_MAP_COMP
-    prev = _gb_trapezoid(True, s0, sig, c0, beta, gamma, shift, cen, mom, nb, T, f)
+    prev = _trapezoid(True, s0, sig, c0, beta, gamma, _G_STEP, _G_STEP_MAX, _G_ACCEPT, (shift, cen, mom, nb, T, f))
     lq = c0 + math.log(sig * prev)
     return math.log1p(-math.exp(lq)) if lq <= math.log(0.5) else np.nan
 
@@ -1290,18 +1252,16 @@ class LikelihoodArrays(NamedTuple):
     moff: np.ndarray
 
 
-@njit(cache=True, error_model="numpy", inline="always")  # no call: its ~20 array arguments cost refcounts
-def loglik(a: np.ndarray, kind: int, brows: np.ndarray, broff: np.ndarray, bcols: np.ndarray, bcoff: np.ndarray,
-           bm: np.ndarray, pi: np.ndarray, pj: np.ndarray, pm: np.ndarray, b: np.ndarray, Q: np.ndarray,
-           Qinv: np.ndarray, E: np.ndarray, Einv: np.ndarray, gitems: np.ndarray, goff: np.ndarray,
-           gmarg: np.ndarray, gbuf: np.ndarray, moff: np.ndarray) -> float:
-    """The log-likelihood of any kind: ``loglik(a, *PreferenceLikelihood.kernel_args())``.
+@njit(cache=True, error_model="numpy", inline="always")  # no call: its ~20 arrays would each cost a refcount
+def loglik(a: np.ndarray, lik: LikelihoodArrays) -> float:
+    """The log-likelihood of any kind: ``loglik(a, PreferenceLikelihood.kernel_bundle())``.
 
-    ``kind`` is ``KIND_PAIRWISE`` (:func:`total_loglik`, unchanged), ``KIND_GROUPED`` (:func:`grouped_loglik`) or
-    ``KIND_RANKED`` (:func:`ranked_loglik`, with ``b``, ``Q``, ``Qinv`` of length N as its scratch).
+    ``lik.kind`` is ``LIK_PAIRWISE`` (:func:`total_loglik`, unchanged), ``LIK_GROUPED`` (:func:`grouped_loglik`) or
+    ``LIK_RANKED`` (:func:`ranked_loglik`, with ``b``, ``Q``, ``Qinv`` of length N as its scratch).
     """
-    if kind == KIND_GROUPED:
-        return grouped_loglik(a, gitems, goff, gmarg, gbuf, moff)
-    if kind == KIND_RANKED:
-        return ranked_loglik(a, gitems, goff, moff, b, Q, Qinv)
-    return total_loglik(a, brows, broff, bcols, bcoff, bm, pi, pj, pm, b, Q, Qinv, E, Einv)
+    if lik.kind == LIK_GROUPED:
+        return grouped_loglik(a, lik.gitems, lik.goff, lik.gmarg, lik.gbuf, lik.moff)
+    if lik.kind == LIK_RANKED:
+        return ranked_loglik(a, lik.gitems, lik.goff, lik.moff, lik.b, lik.Q, lik.Qinv)
+    return total_loglik(a, lik.brows, lik.broff, lik.bcols, lik.bcoff, lik.bm, lik.pi, lik.pj, lik.pm, lik.b, lik.Q,
+                        lik.Qinv, lik.E, lik.Einv)

@@ -136,7 +136,7 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
         rankings say nothing about their penalty.
     move, accepted, acceptance_fraction : ndarray, (chains, draws), or None
         Per kept draw: the move type of the iteration that produced it (int8, 0 none, 1 flip, 2 weight, 3
-        parameter; :data:`pbicrl.inference.samplers.driver.MOVE_CODES`), whether it was accepted, and the fraction of
+        parameter; :data:`pbicrl.inference.codes.MOVES`), whether it was accepted, and the fraction of
         iterations accepted since the previous kept draw. ``None`` for runs saved before they were recorded.
     path : Path or None
         The run directory this posterior was loaded from (:meth:`load`), else ``None``.

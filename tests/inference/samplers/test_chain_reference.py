@@ -13,10 +13,12 @@ Everything a chain depends on is stored or pinned, so that work elsewhere does n
 
 * the data (mean features, groups, margins; for the wall case the per-step states) are stored in the file, not
   regenerated from :mod:`pbicrl.inference.synthetic` or read from the shipped dataset, which may change;
-* ``loop`` cases call :func:`pbicrl.inference.samplers._mcmc.run_chunk` directly with every argument recorded from a real
-  ``Kernel.run`` (initial state, prior arrays, constraint arrays, proposal scales), except the likelihood's
-  ``kernel_args()``, which are rebuilt; the random numbers are regenerated from a fixed seed. They check the
-  compiled loop and the likelihood kernel, whatever ``samplers/kernels.py`` does around them;
+* ``loop`` cases call :func:`pbicrl.inference.samplers._mcmc.advance` directly with every bundle field recorded, by
+  name (``in__<bundle>.<field>``), from a real ``Kernel.run`` (initial state, prior arrays, constraint arrays,
+  proposal scales), except the likelihood's arrays (``kernel_bundle()``), which are rebuilt; the random numbers
+  are regenerated from a fixed seed. They check the compiled loop and the likelihood kernel, whatever
+  ``samplers/kernels.py`` does around them. A field the call changed is stored after the call as
+  ``out__<bundle>.<field>``; every other field must come back untouched;
 * ``driver`` cases run :func:`pbicrl.inference.samplers.driver.run_chain` end to end with explicit settings. ``paper``
   must match in any case; for ``pbicrl`` and ``bpl`` the chain is compared only while ``Kernel.init`` still
   gives the recorded initial state (it belongs to ``samplers/kernels.py``, which evolves separately).
@@ -24,7 +26,10 @@ Everything a chain depends on is stored or pinned, so that work elsewhere does n
 What is compared is the chain: every state, draw, log-density, MAP and proposal/acceptance counter. Two things
 measure work rather than the chain and may only go down: the number of exact likelihood evaluations
 (``counts[C_EVALS]``; the sampler skips evaluations whose outcome is already decided, e.g. by a bound) and the
-per-call memo scratch (``memo_valid``, ``memo_ll``: the last two arguments of ``run_chunk``), which is not compared.
+per-call scratch (``scratch.*``: the memo of flipped likelihoods and the last move), which is not compared.
+
+The loop cases were first recorded as ``run_chunk``'s positional arguments (the loop's signature before the
+bundles) and converted to field names on 2026-12-02 with that ``run_chunk``, which replayed every case first.
 
 The states visited stay within the kernel's one-centre range (returns spread < ``_kernels._SPREAD``), whose
 arithmetic must not change (to ``LL_RTOL``, below); the wide-spread path is checked against its oracle elsewhere.
@@ -57,12 +62,25 @@ import pytest
 
 import pbicrl
 from pbicrl.inference import likelihood_kernels as _kernels
+from pbicrl.inference.codes import C_EVALS
 from pbicrl.inference.constraints import AxisHalfspace, ConstraintSet
 from pbicrl.inference.data import Dataset
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.preferences import Preferences
 from pbicrl.inference.priors import IndicatorPrior, WeightPrior
 from pbicrl.inference.samplers import SamplerSettings, _mcmc
+from pbicrl.inference.samplers.bundles import (
+    Adaptation,
+    ConstraintArrays,
+    Draws,
+    MapTracker,
+    Model,
+    Moves,
+    Position,
+    Randoms,
+    Schedule,
+    Scratch,
+)
 from pbicrl.inference.samplers.driver import run_chain
 from pbicrl.inference.samplers.kernels import Kernel
 
@@ -70,12 +88,15 @@ REF = Path(__file__).resolve().parents[2] / "data" / "chain_reference.npz"
 METHODS = ("pbicrl", "paper", "bpl")
 CASES = ("point_mass", "point_mass_sampled", "wall")
 _ITER = 3000
-_N_PREFIX = 16  # run_chunk arguments before the likelihood's kernel_args (mode ... power)
-_N_KARGS_RECORDED = 13  # len(kernel_args()) when the reference was recorded (pairwise arrays + 5 scratch buffers)
+# advance's arguments by name (the likelihood's arrays and the random numbers are rebuilt, not stored)
+_BUNDLES = {"schedule": Schedule, "position": Position, "constraints": ConstraintArrays, "moves": Moves,
+            "model": Model, "adaptation": Adaptation, "draws": Draws, "best": MapTracker, "scratch": Scratch}
+_NOT_COMPARED = ("scratch.",)  # per-call work space (module docstring)
 _DRIVER_FIELDS = ("indicators", "penalty_weights", "parameters", "log_likelihood", "log_prior", "map_indicators",
                   "map_penalty_weights", "map_parameters", "map_log_posterior", "map_log_likelihood", "counts")
-# log-likelihood-valued arrays by run_chunk argument / driver field name, compared to LL_RTOL (module docstring)
-LL_VALUED = ("scal", "out_ll", "map_scal", "log_likelihood", "map_log_posterior", "map_log_likelihood")
+# log-likelihood-valued arrays by bundle field / driver field name, compared to LL_RTOL (module docstring)
+LL_VALUED = ("position.log_density", "draws.log_likelihood", "best.log_density", "log_likelihood",
+             "map_log_posterior", "map_log_likelihood")
 LL_RTOL = 1e-12
 
 
@@ -91,14 +112,6 @@ def _same(case: str, name: str, got: Any, expect: Any) -> bool:
                                                                            equal_nan=True):
         return False
     return bool(np.allclose(got[finite], expect[finite], rtol=LL_RTOL, atol=0.0))
-
-
-def _loop_arg_names() -> list[str]:
-    """Names of the arguments ``_check_loop`` compares: run_chunk's, without the likelihood's kernel_args."""
-    import inspect
-
-    names = list(inspect.signature(_mcmc.run_chunk).parameters)
-    return names[:_N_PREFIX] + names[_N_PREFIX + len(_kernels.LikelihoodArrays._fields):]
 
 
 # ------------------------------------------------------------------------------------------------ data
@@ -145,78 +158,69 @@ def _kernel(case: str, method: str, data: dict[str, np.ndarray]) -> Kernel:
 
 
 # ------------------------------------------------------------------------------------------------ runs
-def _randoms(n: int, pmax: int) -> tuple[np.ndarray, ...]:
+def _randoms(n: int, pmax: int) -> Randoms:
+    """The random numbers of a loop case; no joint moves (``zj`` is the placeholder of ``p_joint = 0``)."""
     rng = np.random.default_rng(77)
-    return rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n), rng.standard_normal((n, pmax))
+    return Randoms(rng.random(n), rng.random(n), rng.standard_normal(n), rng.random(n),
+                   rng.standard_normal((n, pmax)), np.zeros((1, 1)))
 
 
-def _capture_loop_args(kernel: Kernel) -> list[Any]:
-    """Arguments of the one ``run_chunk`` call made by ``Kernel.run`` (recording only)."""
-    seen: list[list[Any]] = []
-    real: Callable[..., Any] = _mcmc.run_chunk
-
-    def spy(*args: Any) -> Any:
-        seen.append([a.copy() if isinstance(a, np.ndarray) else a for a in args])
-        return real(*args)
-
-    _mcmc.run_chunk = spy
-    try:
-        kernel.run(np.random.default_rng(0), kernel.init(0), _ITER, kernel.new_buffers(kernel.settings.n_draws))
-    finally:
-        _mcmc.run_chunk = real
-    assert len(seen) == 1
-    return seen[0][:len(seen[0]) - len(_later_args(1))]  # _run_loop appends those itself
-
-
-def _run_loop(args: list[Any], lik: PreferenceLikelihood) -> list[Any]:
-    """``run_chunk`` on recorded prefix/suffix arguments around fresh ``kernel_args()``; returns the mutated arrays.
-
-    Arguments added to ``run_chunk`` after the reference was recorded go last, at the values that switch their
-    feature off (``_later_args``); they are not returned.
-    """
-    prefix = [a.copy() if isinstance(a, np.ndarray) else a for a in args[:_N_PREFIX]]
-    suffix = [a.copy() if isinstance(a, np.ndarray) else a for a in args[_N_PREFIX + _N_KARGS_RECORDED:]]
-    _mcmc.run_chunk(*prefix, *lik.kernel_args(), *suffix, *_later_args(int(np.size(prefix[9]))))
-    return prefix + suffix
-
-
-def _later_args(d: int) -> tuple[Any, ...]:
-    """``p_joint, zj, jcov, jst, jsc``: no joint weight moves (``SamplerSettings.p_joint = 0``)."""
-    return 0.0, np.zeros((1, 1)), np.zeros((d, d)), np.zeros((3, d, d)), np.array([1.0, 0.0, 0.0])
-
-
-def _loop_case(case: str, method: str, data: dict[str, np.ndarray], args: list[Any] | None) -> dict[str, np.ndarray]:
-    """Record (``args is None``) or replay one ``loop`` case; returns arguments before and after the call."""
-    if args is None:
-        kernel = _kernel(case, method, data)
-        args = _capture_loop_args(kernel)
-        # the random numbers are regenerated from a seed by the test, not stored
-        i0 = _N_PREFIX + _N_KARGS_RECORDED + 11  # after the 11 constraint arrays
-        for k, r in enumerate(_randoms(_ITER, args[i0 + 4].shape[1])):
-            args[i0 + k] = r
-    lik = _likelihood(case, data)
-    after = _run_loop(args, lik)
-    i0 = _N_PREFIX + _N_KARGS_RECORDED + 11
-    skip = set(range(_N_PREFIX, _N_PREFIX + _N_KARGS_RECORDED)) | set(range(i0, i0 + 5))
-    out = {f"arg{k}": np.asarray(v) for k, v in enumerate(args) if k not in skip}
-    out["arg_pmax"] = np.asarray(args[i0 + 4].shape[1])
-    # keep only what the call changed (state, draws, counters); everything else must come back untouched
-    before = args[:_N_PREFIX] + args[_N_PREFIX + _N_KARGS_RECORDED:]
-    out |= {f"out{k}": np.asarray(v) for k, (v, b) in enumerate(zip(after, before))
-            if not np.array_equal(np.asarray(v), np.asarray(b), equal_nan=True)}
+def _flatten(bundles: dict[str, Any], counts: np.ndarray) -> dict[str, Any]:
+    """``{"<bundle>.<field>": value}`` of every recorded argument of :func:`advance`, arrays copied."""
+    out: dict[str, Any] = {"counts": counts.copy()}
+    for name, bundle in bundles.items():
+        for field, v in bundle._asdict().items():
+            out[f"{name}.{field}"] = v.copy() if isinstance(v, np.ndarray) else v
     return out
 
 
-def _loop_args_from(ref: dict[str, np.ndarray]) -> list[Any]:
-    ks = sorted(int(k[3:]) for k in ref if k.startswith("arg") and k[3:].isdigit())
-    args: list[Any] = [None] * (max(ks) + 1)
-    for k in ks:
-        v = ref[f"arg{k}"]
-        args[k] = v.item() if v.ndim == 0 else v.copy()
-    i0 = _N_PREFIX + _N_KARGS_RECORDED + 11
-    for k, r in enumerate(_randoms(_ITER, int(ref["arg_pmax"]))):
-        args[i0 + k] = r
-    return args
+def _capture_loop_args(kernel: Kernel) -> tuple[dict[str, Any], int]:
+    """Arguments of the one ``advance`` call made by ``Kernel.run`` by name, and the width of ``Randoms.zt``
+    (recording only)."""
+    seen: list[tuple[dict[str, Any], int]] = []
+    real: Callable[..., Any] = _mcmc.advance
+
+    def spy(sched, pos, lik, cons, moves, model, rnd, adapt, draws, best, counts, scratch):
+        seen.append(_flatten({"schedule": sched, "position": pos, "constraints": cons, "moves": moves,
+                              "model": model, "adaptation": adapt, "draws": draws, "best": best,
+                              "scratch": scratch}, counts), rnd.zt.shape[1])
+        return real(sched, pos, lik, cons, moves, model, rnd, adapt, draws, best, counts, scratch)
+
+    _mcmc.advance = spy
+    try:
+        kernel.run(np.random.default_rng(0), kernel.init(0), _ITER, kernel.new_buffers(kernel.settings.n_draws))
+    finally:
+        _mcmc.advance = real
+    assert len(seen) == 1
+    return seen[0]
+
+
+def _run_loop(args: dict[str, Any], lik: PreferenceLikelihood, pmax: int) -> dict[str, Any]:
+    """:func:`advance` on recorded fields (copied) with fresh likelihood arrays and random numbers; returns every
+    recorded field after the call."""
+    args = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in args.items()}
+    bundles = {name: cls(**{f: args[f"{name}.{f}"] for f in cls._fields}) for name, cls in _BUNDLES.items()}
+    b = bundles
+    _mcmc.advance(b["schedule"], b["position"], lik.kernel_bundle(), b["constraints"], b["moves"], b["model"],
+                  _randoms(int(b["schedule"].n), pmax), b["adaptation"], b["draws"], b["best"], args["counts"],
+                  b["scratch"])
+    return _flatten(bundles, args["counts"])
+
+
+def _loop_case(case: str, method: str, data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Record one ``loop`` case: its inputs (``in__``) and what the call changed (``out__``)."""
+    args, pmax = _capture_loop_args(_kernel(case, method, data))
+    after = _run_loop(args, _likelihood(case, data), pmax)
+    out = {f"in__{k}": np.asarray(v) for k, v in args.items()}
+    out["pmax"] = np.asarray(pmax)
+    # keep only what the call changed (state, draws, counters); everything else must come back untouched
+    out |= {f"out__{k}": np.asarray(v) for k, v in after.items()
+            if not np.array_equal(np.asarray(v), np.asarray(args[k]), equal_nan=True)}
+    return out
+
+
+def _loop_args_from(ref: dict[str, np.ndarray]) -> dict[str, Any]:
+    return {k[4:]: (v.item() if v.ndim == 0 else v.copy()) for k, v in ref.items() if k.startswith("in__")}
 
 
 def _driver_case(case: str, method: str, data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -234,7 +238,7 @@ def _record() -> dict[str, np.ndarray]:
     arrays = {f"data__{k}": v for k, v in data.items()}
     for case in CASES:
         for method in METHODS:
-            for key, v in _loop_case(case, method, data, None).items():
+            for key, v in _loop_case(case, method, data).items():
                 arrays[f"{case}__{method}__loop__{key}"] = v
             for key, v in _driver_case(case, method, data).items():
                 arrays[f"{case}__{method}__driver__{key}"] = v
@@ -272,39 +276,34 @@ def _load(prefix: str) -> dict[str, np.ndarray]:
 def _check_loop(case: str, method: str) -> str:
     data = _load("data__")
     ref = _load(f"{case}__{method}__loop__")
-    args = _loop_args_from(ref)
-    before = [a.copy() if isinstance(a, np.ndarray) else a
-              for a in args[:_N_PREFIX] + args[_N_PREFIX + _N_KARGS_RECORDED:]]
-    after = _run_loop(args, _likelihood(case, data))
-    if len(after) != len(before):
-        return "fail: run_chunk takes a different number of arguments around kernel_args()"
-    i_counts = len(after) - 6  # ... map_scal, counts, a_new, col_new, theta_new, memo_valid, memo_ll
-    names = _loop_arg_names()[:len(after)]
-    for k, (v, b) in enumerate(zip(after, before)):
-        if k >= len(after) - 2:
-            continue  # memo scratch (module docstring)
-        expect = ref[f"out{k}"] if f"out{k}" in ref else np.asarray(b)
-        if k == i_counts:
+    before = _loop_args_from(ref)
+    after = _run_loop(before, _likelihood(case, data), int(ref["pmax"]))
+    if set(after) != set(before):
+        return f"fail: advance's bundles have other fields than recorded: {sorted(set(after) ^ set(before))}"
+    for name, v in after.items():
+        if name.startswith(_NOT_COMPARED):
+            continue
+        expect = ref[f"out__{name}"] if f"out__{name}" in ref else np.asarray(before[name])
+        if name == "counts":
             problem = _counts_problem(np.asarray(v), expect)
             if problem:
                 return f"fail: {problem}"
-            continue
-        if not _same(case, names[k], v, expect):
-            return f"fail: run_chunk argument {k} ({names[k]}) differs after the call"
-    if not np.ptp(after[11]) < _kernels._SPREAD:  # the final returns: the reference exercises the one-centre kernel
+        elif not _same(case, name, v, expect):
+            return f"fail: {name} differs after the call"
+    if not np.ptp(after["position.scaled_returns"]) < _kernels._SPREAD:  # the reference exercises the one-centre kernel
         return "fail: the chain left the one-centre range of the kernel"
-    if float(after[12][0]) == float(ref["arg12"][0]):
+    if float(after["position.log_density"][0]) == float(before["position.log_density"][0]):
         return "fail: the log-likelihood never moved"
     return "ok"
 
 
 def _counts_problem(got: np.ndarray, expect: np.ndarray) -> str:
     """'' when the counters agree (likelihood evaluations may only have gone down), else what differs."""
-    keep = np.arange(expect.size) != _mcmc.C_EVALS
+    keep = np.arange(expect.size) != C_EVALS
     if got.shape != expect.shape or not np.array_equal(got[keep], expect[keep]):
         return "proposal/acceptance counters differ"
-    if got[_mcmc.C_EVALS] > expect[_mcmc.C_EVALS]:
-        return f"more likelihood evaluations than recorded ({got[_mcmc.C_EVALS]} > {expect[_mcmc.C_EVALS]})"
+    if got[C_EVALS] > expect[C_EVALS]:
+        return f"more likelihood evaluations than recorded ({got[C_EVALS]} > {expect[C_EVALS]})"
     return ""
 
 

@@ -14,7 +14,8 @@ import pytest
 
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.samplers import build_kernel, run_chain, sample
-from pbicrl.inference.samplers.driver import MOVE_CODES, sampler_needs_compiling, stop_pool
+from pbicrl.inference.codes import MOVES
+from pbicrl.inference.samplers.driver import sampler_needs_compiling, stop_pool
 from pbicrl.inference.synthetic import make_problem
 
 N = 3000
@@ -45,7 +46,7 @@ def test_chain_k_is_run_chain_on_the_kth_child_seed_whatever_the_processes(lik, 
 def test_per_draw_records_are_consistent(lik):
     post = sample(lik, n_iterations=N, n_chains=2, seed=1, n_jobs=1, progress=False)
     assert post.move.shape == post.accepted.shape == post.acceptance_fraction.shape == post.log_likelihood.shape
-    assert set(np.unique(post.move)) <= set(MOVE_CODES)
+    assert set(np.unique(post.move)) <= set(MOVES)
     assert np.all((post.acceptance_fraction >= 0) & (post.acceptance_fraction <= 1))
     # a draw that was accepted differs from the previous kept draw only if thinning is 1; with thinning the
     # fraction of accepted iterations since the previous draw is positive whenever the state changed

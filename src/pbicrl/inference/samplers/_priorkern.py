@@ -6,7 +6,7 @@ parameters ``[low, high, loc, scale, df, log_norm]``, as produced by
 truncation mass :math:`F(b) - F(a)`) is computed once in Python, where the tail-accurate CDFs live; the
 kernel here only evaluates :math:`\\log f(z) - \\text{log\\_norm}` at :math:`z = (w - \\mu_j)/s_j`.
 
-Kind codes: ``PRIOR_*`` of :mod:`pbicrl.inference.codes` (``KIND_*`` here are the same constants).
+Kind codes: ``PRIOR_*`` of :mod:`pbicrl.inference.codes` .
 """
 
 from __future__ import annotations
@@ -16,16 +16,12 @@ import math
 import numpy as np
 from numba import njit
 
-from pbicrl.inference.codes import PRIOR_FLAT, PRIOR_IMPROPER, PRIOR_NORMAL, PRIOR_STUDENT_T
+from pbicrl.inference.codes import PRIOR_FLAT, PRIOR_IMPROPER, PRIOR_NORMAL
 
-__all__ = ["lognormal", "logprior_w", "KIND_FLAT", "KIND_NORMAL", "KIND_IMPROPER", "KIND_STUDENT_T", "N_PRIOR_PARAMS"]
+__all__ = ["lognormal", "logprior_w", "N_PRIOR_PARAMS"]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
-KIND_FLAT = PRIOR_FLAT
-KIND_NORMAL = PRIOR_NORMAL
-KIND_IMPROPER = PRIOR_IMPROPER
-KIND_STUDENT_T = PRIOR_STUDENT_T
 #: Columns of the parameter matrix: low, high, loc, scale, df, log_norm.
 N_PRIOR_PARAMS = 6
 
@@ -37,12 +33,12 @@ def logprior_w(kind: int, prm: np.ndarray, j: int, w: float) -> float:
     hi = prm[j, 1]
     if w < lo or w > hi or w != w:
         return -np.inf
-    if kind == KIND_FLAT:
+    if kind == PRIOR_FLAT:
         return -prm[j, 5]
-    if kind == KIND_IMPROPER:
+    if kind == PRIOR_IMPROPER:
         return 0.0
     z = (w - prm[j, 2]) / prm[j, 3]
-    if kind == KIND_NORMAL:
+    if kind == PRIOR_NORMAL:
         return -0.5 * z * z - prm[j, 5]
     # Student-t: -(nu+1)/2 log(1 + z^2/nu); for huge |z| the square would overflow
     nu = prm[j, 4]

@@ -13,7 +13,7 @@ whether they are compiling, in the sweep's :class:`RunsCounter` (shared with the
 bar shows the progress inside the runs in progress.
 
 Per-draw statistics (:class:`_DrawStats`): besides the draws, every chain records for each kept draw the move
-type of the iteration that produced it (:data:`MOVE_CODES`), whether that move was accepted, and the fraction
+type of the iteration that produced it (:data:`pbicrl.inference.codes.MOVES`), whether that move was accepted, and the fraction
 of iterations accepted since the previous kept draw. The compiled loop keeps counters only, so the driver runs
 each chunk with ``thin = 1`` (the thinning only selects what is stored: the chain is the same) and reads the
 acceptances off consecutive states; the move types follow from the chunk's random numbers, drawn again from a
@@ -40,14 +40,14 @@ from typing import Any, NamedTuple, Self, Sequence
 
 import numpy as np
 
-from pbicrl.inference.codes import MOVE_FLIP, MOVE_NONE, MOVE_PARAMETER, MOVE_WEIGHT, MOVES
+from pbicrl.inference.codes import MOVE_FLIP, MOVE_NONE, MOVE_PARAMETER, MOVE_WEIGHT
 from pbicrl.inference.constraints import ConstraintSet
 from pbicrl.inference.convergence import TARGET_ESS, TARGET_RHAT, Convergence, check_convergence, reported_quantities
 from pbicrl.inference.likelihood import PreferenceLikelihood
 from pbicrl.inference.posterior import Posterior
 from pbicrl.inference.samplers.kernels import ADAPT_EVERY, ChainState, Kernel, SamplerSettings, build_kernel
 
-__all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling", "MOVE_CODES",
+__all__ = ["progress_bar", "sample", "run_chain", "die_with_parent", "stop_pool", "sampler_needs_compiling",
            "StoppingRule", "RunsCounter", "RunsSnapshot", "set_runs_counter", "COMPILE_NOTE"]
 
 # Fixed: the random numbers of a chunk are drawn at once, so the chunk size is part of a chain's result.
@@ -57,9 +57,6 @@ COMPILE_NOTE = "pbicrl: compiling the sampler (first run only: about a minute, c
 """What :func:`sample` (with progress) and a sweep's bar print once before a run compiles the sampler."""
 _runs_counter: RunsCounter | None = None  # a sweep's, in the process that runs its tasks (set_runs_counter)
 _current_run: _RunShare | None = None  # the run sample() is doing in this process, counted in _runs_counter
-
-MOVE_CODES = MOVES
-"""Per-draw move codes (``Posterior.move``): the move the compiled loop chose at the iteration of a kept draw."""
 
 
 # ---------------------------------------------------------------------------------------------- processes
@@ -314,7 +311,7 @@ def _compile_here(kernel: Kernel) -> None:
 def run_chain(kernel: Kernel, seed: np.random.SeedSequence | int, progress_counter: Any = None) -> dict[str, Any]:
     """Run one chain to completion; returns its draws, MAP, counters, per-draw statistics and runtime.
 
-    Per kept draw: ``move`` (int8, :data:`MOVE_CODES`), ``accepted`` (bool) and ``acceptance_fraction`` (the
+    Per kept draw: ``move`` (int8, :data:`pbicrl.inference.codes.MOVES`), ``accepted`` (bool) and ``acceptance_fraction`` (the
     fraction of iterations accepted since the previous kept draw; for the first, its own iteration).
     """
     rng = np.random.default_rng(seed)
@@ -356,7 +353,7 @@ class _ReplayKernel(Kernel):
 
 def _move_codes(kernel: Kernel, iterations: np.ndarray, u_j: np.ndarray, u_mv: np.ndarray,
                indicators_after: np.ndarray) -> np.ndarray:
-    """The move the compiled loop chooses at each of ``iterations`` (:data:`MOVE_CODES`), from that iteration's
+    """The move the compiled loop chooses at each of ``iterations`` (:data:`pbicrl.inference.codes.MOVES`), from that iteration's
     feature and move uniforms and the indicators :math:`c` after it.
 
     The choice depends on :math:`c` before the iteration only for a ``pbicrl`` weight or parameter step (it picks
