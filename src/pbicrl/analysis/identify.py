@@ -645,7 +645,8 @@ class _GroupLP:
         cols = np.concatenate([np.tile(np.arange(p), n), self.col[p + g], np.tile(np.arange(p), n),
                                self.col[p + K + g]])
         vals = np.concatenate([-Xw.ravel(), np.ones(n), Xw.ravel(), -np.ones(n)])
-        work = coo_matrix((vals, (rows, cols)), shape=(2 * n, self.keep.size))
+        nz = vals != 0.0  # sparse features (indicators, cells) stay sparse for the solver
+        work = coo_matrix((vals[nz], (rows[nz], cols[nz])), shape=(2 * n, self.keep.size))
         A_ord, b_ord, b_hom = self._order_rows
         A = vstack([work, A_ord], format="csr")
         b = np.concatenate([ci, -ci, b_hom if homogeneous else b_ord])
