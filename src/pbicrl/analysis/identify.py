@@ -962,6 +962,23 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
     return sorted(found)
 
 
+def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64], neg: bool, tick: _Progress) -> bool:
+    r"""Whether some direction of the recession cone improves the ranking (is not flat): :math:`\max \bar g^\top
+    \delta > T_{min}` over the cone within the per-feature LPs' box.
+
+    Each per-feature LP maximises :math:`t \le \bar g^\top\delta` over that box, so when this maximum is at most
+    the threshold no penalty is unbounded and none of them needs solving (exact, not a heuristic). That is the
+    usual case for rankings no direction orders, e.g. noisy ones, where the cone holds only flat directions (an
+    affinely dependent set such as one-hot cells, whose fractions sum to 1), which move every feature they touch.
+    """
+    obj = np.zeros(lp.n_var)
+    obj[:p] = -gbar
+    bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
+    x = lp.solve(obj, bnd, homogeneous=True)
+    tick.step()
+    return x is not None and float(gbar @ x[:p]) > _T_MIN
+
+
 def identify(
     dataset: Dataset,
     *,
@@ -1104,7 +1121,10 @@ def identify(
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
     tick = _Progress(progress, "identify: recession directions")
-    for a in (_recession_support(lp, p, K, free_uv, tick) if neg else range(p)):
+    movable = _recession_support(lp, p, K, free_uv, tick) if neg else list(range(p))
+    if movable and not _improving(lp, p, free_uv, gbar, neg, tick):
+        movable = []
+    for a in movable:
         j = free[a]
         for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
             # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
