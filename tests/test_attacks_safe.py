@@ -133,6 +133,23 @@ def test_a_malformed_checkpoint_state_names_the_file(rl, tmp_path, capsys, state
     assert rc == 2 and "state.json" in err and message in err, err
 
 
+def test_a_malformed_policy_file_is_a_clean_error_on_the_command_line(rl, tmp_path, capsys):
+    good = zipfile.ZipFile(Path(__file__).parents[1] / "src/pbicrl/data/policies/point_mass_good.zip")
+    junk, cut, bad_json, bad_weights = (tmp_path / n for n in ("junk.zip", "cut.zip", "json.zip", "weights.zip"))
+    junk.write_bytes(b"junk")
+    cut.write_bytes((Path(__file__).parents[1] / "src/pbicrl/data/policies/point_mass_good.zip").read_bytes()[:50_000])
+    for path, settings, weights in ((bad_json, "{not json", b"x"), (bad_weights, good.read("pbicrl.json"), b"x" * 64)):
+        with zipfile.ZipFile(path, "w") as zf:
+            zf.writestr("pbicrl.json", settings)
+            zf.writestr("weights.pt", weights)
+    for path, message in ((junk, "not a zip"), (cut, "not a zip"), (bad_json, "not valid JSON"),
+                          (bad_weights, "tensors-only")):
+        rc, err = _cli(capsys, ["envs", "demos", "--env", "point_mass", "--good-policy", str(path), "-n", "1",
+                                "--max-episodes", "2", "--out", str(tmp_path / "d.npz")])
+        assert rc == 2 and path.name in err and message in err and "weights_only=False" not in err, err
+        assert not (tmp_path / "d.npz").exists()
+
+
 def test_sac_files_refuse_settings_outside_the_schema(rl, tmp_path):
     """A pbicrl archive whose settings name anything outside the allow-lists is refused before any network is
     built; tensors-only weights are the only pickle read, with ``weights_only=True``."""
