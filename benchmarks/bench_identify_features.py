@@ -9,8 +9,9 @@ data (features 0-3: inverse goal distance, in orange, in red, goal not reached; 
 * ``noise``: a uniform [0, 1] value per state and feature (dense, the worst case for the LPs).
 
 Two rankings: ``separated`` (as simulated: G2 and G3 are told apart by orange and red, so some direction orders
-every pair strictly and every candidate penalty is unbounded: the per-feature LPs all run) and ``noisy`` (10% of
-the labels shuffled: not separable and no direction orders every pair, so only a few LPs run whatever d is).
+every pair strictly and every candidate penalty is unbounded: the per-feature LPs all run) and ``noisy`` (five G1
+trajectories also labelled G3, the same behaviour ranked best and worst: not separable at any d, so there are no
+separation-scale LPs; whether recession LPs run depends on the cone).
 
     nice python benchmarks/bench_identify_features.py [--features 100,1000,10000] [--variants noisy,separated]
         [--kind cells] [--trajectories 300] [--json FILE]
@@ -54,10 +55,11 @@ def make_dataset(d: int, *, n: int = 300, length: int = 10, kind: str = "cells",
         feats[:, 4:] = rng.random((S, d - 4))
     elif d > 4:
         raise ValueError(f"kind: expected 'cells' or 'noise', got {kind!r}")
-    if noisy:
-        flip = rng.random(n) < 0.10
-        group = group.copy()
-        group[flip] = rng.integers(1, 4, int(flip.sum()))
+    if noisy:  # five G1 trajectories also ranked last (the same behaviour labelled twice): no w orders those pairs
+        dup = np.arange(5)
+        feats = np.vstack([feats, feats[(dup[:, None] * length + np.arange(length)).ravel()]])
+        group = np.r_[group, np.full(dup.size, 3)]
+        n += dup.size
     names = ("inv_goal_distance", "in_orange", "in_red", "goal_not_reached") + tuple(f"x{j}" for j in range(d - 4))
     return Dataset(features=feats, offsets=np.arange(n + 1) * length, group=group, feature_names=names,
                    nominal_weights=np.r_[1.0, 0.0, 0.0, -1.0, np.zeros(d - 4)])

@@ -856,12 +856,13 @@ _PROGRESS_DELAY_S = 3.0
 class _Progress:
     """A tqdm bar on stderr that appears only after :data:`_PROGRESS_DELAY_S` seconds (or nothing)."""
 
-    def __init__(self, enabled: bool, what: str) -> None:
+    def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature") -> None:
         self.bar = None
         if enabled:
             from tqdm import tqdm
 
-            self.bar = tqdm(desc=what, unit="LP", delay=_PROGRESS_DELAY_S, leave=False, dynamic_ncols=True)
+            self.bar = tqdm(desc=what, total=total, unit=unit, delay=_PROGRESS_DELAY_S, leave=False,
+                            dynamic_ncols=True)
 
     def step(self) -> None:
         if self.bar is not None:
@@ -1120,10 +1121,12 @@ def identify(
     # ---- recession analysis (independent of alpha, beta, margins)
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
-    tick = _Progress(progress, "identify: recession directions")
+    tick = _Progress(progress, "identify: unbounded penalties", unit="LP")
     movable = _recession_support(lp, p, K, free_uv, tick) if neg else list(range(p))
     if movable and not _improving(lp, p, free_uv, gbar, neg, tick):
         movable = []
+    tick.close()
+    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable))
     for a in movable:
         j = free[a]
         for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
@@ -1169,7 +1172,7 @@ def identify(
     separable = x0 is not None
     rng: dict[int, tuple[float, float]] = {}
     tick.close()
-    tick = _Progress(progress, "identify: separation scales")
+    tick = _Progress(progress and separable and p > 0, "identify: separation scales", total=p)
     if separable:
         # A point of S_alpha with w_j = 0 settles the upper end of w_j <= 0 (it is 0) without an LP; the vertices
         # HiGHS returns have few non-zero penalties, so with many features most ends are settled by the points
