@@ -1039,13 +1039,18 @@ def identify(
 
     Notes
     -----
-    Cost: a handful of LPs per candidate (feasibility, the two ends of :math:`w_{p,j}` over :math:`S_\alpha`,
-    one recession LP per admissible sign and one for the sparsest direction), each over
+    Cost: up to a handful of LPs per candidate (the two ends of :math:`w_{p,j}` over :math:`S_\alpha`, one recession
+    LP per admissible sign and one for the sparsest direction) after a few shared ones (feasibility; with
+    :math:`w_p \le 0`, the features some recession direction moves; whether any direction improves the ranking).
+    Skipped: the recession LPs when no direction improves the ranking (then no penalty is unbounded), the upper end
+    of :math:`w_{p,j} \le 0` when a point of :math:`S_\alpha` found so far has :math:`w_{p,j} = 0`, every end when
+    the ranking is not separable. Each LP is over
     ``p + 2K + 1 (+ p)`` variables (less two per single-trajectory group) and the rows of a small working set of
     extreme trajectories (cutting planes, exact at termination) plus the group-ordering rows: K - 1 for additive
     margins (zeros, gaps), K(K-1)/2 for a general matrix; every round checks all ``N`` trajectories in
     :math:`O(Np + K)`. Memory is O(N p + K) for additive margins: a total ranking of 20,000 trajectories takes a
-    few seconds and tens of MB (``tests/analysis/test_identify.py``).
+    few seconds and tens of MB (``tests/analysis/test_identify.py``). With many features the per-feature LPs
+    dominate, each :math:`O(N p)` in size: ``benchmarks/reports/identify.md``.
     """
     t0 = time.perf_counter()
     if not isinstance(dataset, Dataset):
