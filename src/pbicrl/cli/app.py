@@ -51,7 +51,7 @@ _WORK_NAME = re.compile(r"^\.(?P<name>.+?)\.(?:lock|(?:tmp|old)-.*)$")
 def _output_error(exc: OSError, args: argparse.Namespace) -> str | None:
     """The message for a failed write through one of pbicrl's own lock or temporary paths: it names the output
     the user asked for (``--out``) and the problem, not the internal path (``None`` for any other error)."""
-    if not exc.filename:
+    if not isinstance(exc.filename, (str, bytes, os.PathLike)) or not exc.filename:
         return None
     path = Path(os.fsdecode(exc.filename))
     for part in (path, *path.parents):
