@@ -9,6 +9,7 @@ traceback, a silent accept).
 from __future__ import annotations
 
 import base64
+import errno
 import json
 import os
 import pickle
@@ -117,6 +118,36 @@ def test_a_crafted_checkpoint_or_warm_start_never_runs(rl, tmp_path, capsys):
     with pytest.raises(SACFileError, match="replay buffer"):
         read_buffer_arrays(tmp_path / "buf.npz")
     assert not marker.exists()
+
+
+@pytest.mark.parametrize("state, message", [("{bad", "not readable JSON"), ("[1]", "JSON object"),
+                                            ('{"num_timesteps": "x"}', "'num_timesteps'")])
+def test_a_malformed_checkpoint_state_names_the_file(rl, tmp_path, capsys, state, message):
+    run = tmp_path / "run"
+    (run / "checkpoint").mkdir(parents=True)
+    (run / "checkpoint" / "model.zip").write_bytes(b"junk")
+    np.savez(run / "checkpoint" / "replay_buffer.npz", x=np.zeros(1))
+    (run / "checkpoint" / "state.json").write_text(state)
+    rc, err = _cli(capsys, ["envs", "train", "--env", "point_mass", "--reward", "nominal", "--steps", "100",
+                            "--out", str(run), "--quiet"])
+    assert rc == 2 and "state.json" in err and message in err, err
+
+
+def test_a_malformed_policy_file_is_a_clean_error_on_the_command_line(rl, tmp_path, capsys):
+    good = zipfile.ZipFile(Path(__file__).parents[1] / "src/pbicrl/data/policies/point_mass_good.zip")
+    junk, cut, bad_json, bad_weights = (tmp_path / n for n in ("junk.zip", "cut.zip", "json.zip", "weights.zip"))
+    junk.write_bytes(b"junk")
+    cut.write_bytes((Path(__file__).parents[1] / "src/pbicrl/data/policies/point_mass_good.zip").read_bytes()[:50_000])
+    for path, settings, weights in ((bad_json, "{not json", b"x"), (bad_weights, good.read("pbicrl.json"), b"x" * 64)):
+        with zipfile.ZipFile(path, "w") as zf:
+            zf.writestr("pbicrl.json", settings)
+            zf.writestr("weights.pt", weights)
+    for path, message in ((junk, "not a zip"), (cut, "not a zip"), (bad_json, "not valid JSON"),
+                          (bad_weights, "tensors-only")):
+        rc, err = _cli(capsys, ["envs", "demos", "--env", "point_mass", "--good-policy", str(path), "-n", "1",
+                                "--max-episodes", "2", "--out", str(tmp_path / "d.npz")])
+        assert rc == 2 and path.name in err and message in err and "weights_only=False" not in err, err
+        assert not (tmp_path / "d.npz").exists()
 
 
 def test_sac_files_refuse_settings_outside_the_schema(rl, tmp_path):
@@ -553,6 +584,30 @@ def test_tune_margins_with_an_empty_grid_is_an_error(demo_npz, tmp_path, capsys)
     rc, err = _cli(capsys, ["tune-margins", str(demo_npz), "--relation", "1,1", "--grid", "", "--out",
                             str(tmp_path / "t")])
     assert rc == 2 and "--grid" in err, err
+
+
+@pytest.mark.parametrize("where, err", [("lock", errno.EACCES), ("temporary", errno.EACCES), ("temporary", errno.EROFS)])
+def test_an_unwritable_out_directory_is_named_not_the_lock_or_temporary(demo_npz, tmp_path, capsys, monkeypatch, where,
+                                                                        err):
+    # root writes anywhere, so the read-only parent is simulated: creating pbicrl's claim (.<name>.lock) or its
+    # temporary (.<name>.tmp-...) there fails as it would on a read-only directory or file system
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_open, real_mkdir = os.open, os.mkdir
+
+    def refuse(path: object) -> None:
+        p = Path(os.fsdecode(path))
+        if p.parent == ro and (p.name.endswith(".lock") if where == "lock" else ".tmp-" in p.name):
+            raise OSError(err, os.strerror(err), os.fsdecode(path)) if err == errno.EROFS else \
+                PermissionError(err, os.strerror(err), os.fsdecode(path))
+
+    monkeypatch.setattr(os, "open", lambda path, *a, **k: (refuse(path), real_open(path, *a, **k))[1])
+    monkeypatch.setattr(os, "mkdir", lambda path, *a, **k: (refuse(path), real_mkdir(path, *a, **k))[1])
+    for argv in (["infer", str(demo_npz), *QUICK], ["tune-margins", str(demo_npz), "--relation", "1,1", "--grid", "0,1"]):
+        rc, msg = _cli(capsys, [*argv, "--out", str(ro / "run")])
+        assert rc == 2 and f"out: cannot write {ro / 'run'}: " in msg, (argv, msg)
+        assert os.strerror(err).lower() in msg and ".lock" not in msg and ".tmp-" not in msg, msg
+        assert not (ro / "run").exists()
 
 
 def test_malformed_constraint_values_name_the_constraint(demo_npz, tmp_path, capsys):

@@ -494,11 +494,8 @@ class _GroupLP:
             self.pair_gap = gaps[self.pair_k, self.pair_l]
             self.gap_max = float(np.max(np.abs(gaps), initial=0.0))
         self._order_rows = self._ordering_rows()
-        # Seed: each group's extremes of the nominal returns and of every standardised feature (both signs).
-        probes = [(1.0, np.zeros(self.p))] + [(0.0, s * e) for e in np.eye(self.p) for s in (1.0, -1.0)]
-        probes += [(1.0, s * e) for e in np.eye(self.p) for s in (1.0, -1.0)]
-        for a, w in probes:
-            self._add_extremes(a * c + X @ w)
+        self._rows_cache: tuple[int, bool, Any] | None = None
+        self._seed()
 
     @staticmethod
     def _additive_gap_max(shift: NDArray[np.float64], base: float) -> float:
@@ -509,6 +506,44 @@ class _GroupLP:
         return float(max(abs(base), abs(d_hi.max() + base), abs(d_lo.min() + base)))
 
     # -- working set
+    def _seed(self) -> None:
+        """Each group's extremes of the nominal returns, then of every standardised feature (both signs), then of
+        the nominal returns plus or minus each feature: per column at once, O(N p), in the order in which one
+        probe after the other would add them."""
+        self._add_extremes(self.c)
+        if not self.p:
+            return
+        multi = np.flatnonzero(~self.single)
+        if multi.size == 0:  # every group is one trajectory, always in the LP
+            return
+        for add_c in (False, True):
+            parts = []
+            for sgn in (1.0, -1.0):
+                step = max(1, (1 << 24) // max(1, self.N))  # columns per chunk: the N x chunk arrays stay ~100 MB
+                lo_hi = []
+                for j0 in range(0, self.p, step):
+                    M = sgn * self.X[:, j0:j0 + step]
+                    if add_c:
+                        M = M + self.c[:, None]
+                    lo_hi.append(np.stack([self._segment_arg_cols(M, np.minimum),
+                                           self._segment_arg_cols(M, np.maximum)], axis=0))  # (2, K, chunk)
+                parts.append(np.concatenate(lo_hi, axis=2))
+            # probe order: feature j with +1 then -1; within a probe, group by group: argmin, argmax
+            arr = np.stack(parts, axis=0)                  # (sign, min/max, K, p)
+            cand = arr.transpose(3, 0, 2, 1)[:, :, multi, :].ravel()
+            _, first = np.unique(cand, return_index=True)
+            new = cand[np.sort(first)]
+            new = new[~self.in_work[new]]
+            self.in_work[new] = True
+            self.work.extend(new.tolist())
+
+    def _segment_arg_cols(self, M: NDArray[np.float64], reduce: np.ufunc) -> NDArray[np.int64]:
+        """First row index of each group's min (``np.minimum``) or max in every column of ``M``: (K, columns)."""
+        ext = reduce.reduceat(M, self.starts[:-1], axis=0)
+        idx = np.where(M == ext[self.group_of], np.arange(self.N)[:, None], self.N)
+        out = np.minimum.reduceat(idx, self.starts[:-1], axis=0)
+        return np.where(out == self.N, self.starts[:-1, None], out)  # a NaN extreme: the group's first member
+
     def _segment_arg(self, r: NDArray[np.float64], reduce: np.ufunc) -> NDArray[np.int64]:
         """First index of each group's min (``np.minimum``) or max, as ``np.argmin``/``argmax`` per segment."""
         ext = reduce.reduceat(r, self.starts[:-1])
@@ -559,6 +594,15 @@ class _GroupLP:
         return A, rhs, rhs_h
 
     def _rows(self, homogeneous: bool) -> tuple[Any, NDArray[np.float64]]:
+        """The working set's rows and the ordering rows, and their right-hand sides (cached until the set grows)."""
+        key = (len(self.work), homogeneous)
+        if self._rows_cache is not None and self._rows_cache[:2] == key:
+            return self._rows_cache[2]
+        out = self._build_rows(homogeneous)
+        self._rows_cache = (*key, out)
+        return out
+
+    def _build_rows(self, homogeneous: bool) -> tuple[Any, NDArray[np.float64]]:
         from scipy.sparse import coo_matrix, vstack
 
         idx = np.asarray(self.work, dtype=np.int64)
@@ -572,7 +616,8 @@ class _GroupLP:
         cols = np.concatenate([np.tile(np.arange(p), n), self.col[p + g], np.tile(np.arange(p), n),
                                self.col[p + K + g]])
         vals = np.concatenate([-Xw.ravel(), np.ones(n), Xw.ravel(), -np.ones(n)])
-        work = coo_matrix((vals, (rows, cols)), shape=(2 * n, self.keep.size))
+        nz = vals != 0.0  # sparse features (indicators, cells) stay sparse for the solver
+        work = coo_matrix((vals[nz], (rows[nz], cols[nz])), shape=(2 * n, self.keep.size))
         A_ord, b_ord, b_hom = self._order_rows
         A = vstack([work, A_ord], format="csr")
         b = np.concatenate([ci, -ci, b_hom if homogeneous else b_ord])
@@ -590,14 +635,15 @@ class _GroupLP:
 
     # -- solve
     def solve(self, objective: NDArray[np.float64], bounds: list[tuple[float | None, float | None]], *,
-              homogeneous: bool, extra_A: NDArray[np.float64] | None = None,
+              homogeneous: bool, extra_A: NDArray[np.float64] | Any | None = None,
               extra_b: NDArray[np.float64] | None = None) -> NDArray[np.float64] | None:
-        """Minimise ``objective @ z``; ``None`` if infeasible. ``bounds`` cover all ``n_var`` variables."""
+        """Minimise ``objective @ z``; ``None`` if infeasible. ``bounds`` cover all ``n_var`` variables; ``extra_A``
+        (dense or sparse) adds rows ``extra_A @ z <= extra_b``."""
         from scipy.optimize import linprog
         from scipy.sparse import csr_matrix, vstack
 
         # callers never weight the bound variables of single-trajectory groups (they are not LP columns)
-        extra = None if extra_A is None else csr_matrix(np.asarray(extra_A)[:, self.keep])
+        extra = None if extra_A is None else csr_matrix(extra_A)[:, self.keep]
         obj = np.asarray(objective)[self.keep]
         bnd = [bounds[i] for i in self.keep]
         while True:
@@ -781,12 +827,13 @@ _PROGRESS_DELAY_S = 3.0
 class _Progress:
     """A tqdm bar on stderr that appears only after :data:`_PROGRESS_DELAY_S` seconds (or nothing)."""
 
-    def __init__(self, enabled: bool, what: str) -> None:
+    def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature") -> None:
         self.bar = None
         if enabled:
             from tqdm import tqdm
 
-            self.bar = tqdm(desc=what, unit="LP", delay=_PROGRESS_DELAY_S, leave=False, dynamic_ncols=True)
+            self.bar = tqdm(desc=what, total=total, unit=unit, delay=_PROGRESS_DELAY_S, leave=False,
+                            dynamic_ncols=True)
 
     def step(self) -> None:
         if self.bar is not None:
@@ -795,6 +842,68 @@ class _Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+_FLAT_PARTNERS_SHOWN = 20  # partners listed per affinely dependent feature (with more features than trajectories
+# every feature depends on nearly every other: the full lists would be p^2 names)
+
+
+def _flat_partners(X: NDArray[np.float64]) -> dict[int, tuple[list[int], bool]]:
+    """Affinely dependent columns of the centred, standardised mean features ``X`` (N, p).
+
+    Returns, for every column ``a`` with a null direction through it, the first :data:`_FLAT_PARTNERS_SHOWN`
+    columns ``b`` (``a`` included, in column order) with :math:`|P_{ab}| > 10^{-8}`, :math:`P` the projector on the
+    null space of ``X``, and whether there are more. :math:`P` is built a tile at a time, from the null vectors or as
+    :math:`I - V_r V_r^\\top` from the row space, whichever is thinner, so nothing p x p is held.
+    """
+    N, p = X.shape
+    if not p:
+        return {}
+    if N >= p:
+        # X and its triangular factor R have the same singular values and right vectors; R is p x p, so the SVD
+        # costs nothing and the QR is one O(N p^2) pass without forming Q.
+        _, sv, vt = np.linalg.svd(np.linalg.qr(X, mode="r"))
+    else:
+        _, sv, vt = np.linalg.svd(X, full_matrices=False)  # the other p - N singular values are 0
+        sv = np.concatenate([sv, np.zeros(p - N)])
+    tol = sv.max() * max(X.shape) * np.finfo(float).eps
+    rank = int(np.sum(sv[:vt.shape[0]] > tol))
+    if rank == p:
+        return {}
+    if N >= p and p - rank <= rank:  # few null directions: P = Z Z^T
+        Z = vt[rank:].T
+        diag = np.einsum("ij,ij->i", Z, Z)
+
+        def tile(A: NDArray[np.int64], B: NDArray[np.int64]) -> NDArray[np.float64]:
+            return Z[A] @ Z[B].T
+    else:  # many: P = I - V_r V_r^T
+        V = vt[:rank].T
+        diag = 1.0 - np.einsum("ij,ij->i", V, V)
+
+        def tile(A: NDArray[np.int64], B: NDArray[np.int64]) -> NDArray[np.float64]:
+            return (A[:, None] == B[None, :]).astype(np.float64) - V[A] @ V[B].T
+    out: dict[int, tuple[list[int], bool]] = {}
+    rows = np.flatnonzero(diag > 1e-8)
+    step = 512
+    for r0 in range(0, rows.size, step):
+        A = rows[r0:r0 + step]
+        found: dict[int, list[int]] = {int(a): [] for a in A}
+        more = dict.fromkeys(found, False)
+        open_ = A
+        for c0 in range(0, p, step):
+            B = np.arange(c0, min(p, c0 + step))
+            hit = np.abs(tile(open_, B)) > 1e-8
+            for i, a in enumerate(open_.tolist()):
+                bs = B[hit[i]].tolist()
+                room = _FLAT_PARTNERS_SHOWN - len(found[a])
+                if len(bs) > room:
+                    more[a] = True
+                found[a].extend(bs[:room])
+            open_ = np.array([a for a in open_.tolist() if not more[a]], dtype=np.int64)
+            if open_.size == 0:
+                break
+        out.update({a: (found[a], more[a]) for a in found})
+    return out
 
 
 def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Progress) -> list[int]:
@@ -823,6 +932,23 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
         rest[hit] = False
         found.extend(int(a) for a in hit)
     return sorted(found)
+
+
+def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64], neg: bool, tick: _Progress) -> bool:
+    r"""Whether some direction of the recession cone improves the ranking (is not flat): :math:`\max \bar g^\top
+    \delta > T_{min}` over the cone within the per-feature LPs' box.
+
+    Each per-feature LP maximises :math:`t \le \bar g^\top\delta` over that box, so when this maximum is at most
+    the threshold no penalty is unbounded and none of them needs solving (exact, not a heuristic). That is the
+    usual case for rankings no direction orders, e.g. noisy ones, where the cone holds only flat directions (an
+    affinely dependent set such as one-hot cells, whose fractions sum to 1), which move every feature they touch.
+    """
+    obj = np.zeros(lp.n_var)
+    obj[:p] = -gbar
+    bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
+    x = lp.solve(obj, bnd, homogeneous=True)
+    tick.step()
+    return x is not None and float(gbar @ x[:p]) > _T_MIN
 
 
 def identify(
@@ -884,13 +1010,18 @@ def identify(
 
     Notes
     -----
-    Cost: a handful of LPs per candidate (feasibility, the two ends of :math:`w_{p,j}` over :math:`S_\alpha`,
-    one recession LP per admissible sign and one for the sparsest direction), each over
+    Cost: up to a handful of LPs per candidate (the two ends of :math:`w_{p,j}` over :math:`S_\alpha`, one recession
+    LP per admissible sign and one for the sparsest direction) after a few shared ones (feasibility; with
+    :math:`w_p \le 0`, the features some recession direction moves; whether any direction improves the ranking).
+    Skipped: the recession LPs when no direction improves the ranking (then no penalty is unbounded), the upper end
+    of :math:`w_{p,j} \le 0` when a point of :math:`S_\alpha` found so far has :math:`w_{p,j} = 0`, every end when
+    the ranking is not separable. Each LP is over
     ``p + 2K + 1 (+ p)`` variables (less two per single-trajectory group) and the rows of a small working set of
     extreme trajectories (cutting planes, exact at termination) plus the group-ordering rows: K - 1 for additive
     margins (zeros, gaps), K(K-1)/2 for a general matrix; every round checks all ``N`` trajectories in
     :math:`O(Np + K)`. Memory is O(N p + K) for additive margins: a total ranking of 20,000 trajectories takes a
-    few seconds and tens of MB (``tests/analysis/test_identify.py``).
+    few seconds and tens of MB (``tests/analysis/test_identify.py``). With many features the per-feature LPs
+    dominate, each :math:`O(N p)` in size: ``benchmarks/reports/identify.md``.
     """
     t0 = time.perf_counter()
     if not isinstance(dataset, Dataset):
@@ -949,6 +1080,8 @@ def identify(
         lp = _GroupLP(X, c, starts, shift=mar.offsets / beta, base=L / beta)
     else:  # a general matrix, given as such
         lp = _GroupLP(X, c, starts, gaps=(mar.matrix + L) / beta)
+    from scipy.sparse import csr_matrix
+
     nv, it, ia = lp.n_var, p + 2 * K, p + 2 * K + 1
     neg = penalty_sign == "negative"
 
@@ -959,26 +1092,18 @@ def identify(
         return b + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
 
     # ---- flat directions (affine dependence among free candidates): the likelihood is constant along them
-    flat_groups: dict[int, list[int]] = {}
-    if p:
-        # X and its triangular factor R have the same singular values and right vectors; R is p x p, so the
-        # SVD costs nothing and the QR is one O(N p^2) pass without forming Q.
-        R = np.linalg.qr(X, mode="r") if X.shape[0] >= p else np.vstack([X, np.zeros((p - X.shape[0], p))])
-        _, sv, vt = np.linalg.svd(R)
-        tol = sv.max() * max(X.shape) * np.finfo(float).eps
-        Z = vt[sv <= tol].T
-        if Z.size:
-            P = Z @ Z.T
-            linked = np.abs(P) > 1e-8
-            for a in range(p):
-                if linked[a, a]:
-                    flat_groups[free[a]] = [free[b] for b in range(p) if linked[a, b]]
+    flat_groups = {free[a]: ([free[b] for b in bs], more) for a, (bs, more) in _flat_partners(X).items()}
 
     # ---- recession analysis (independent of alpha, beta, margins)
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
-    tick = _Progress(progress, "identify: recession directions")
-    for a in (_recession_support(lp, p, K, free_uv, tick) if neg else range(p)):
+    tick = _Progress(progress, "identify: unbounded penalties", unit="LP")
+    movable = _recession_support(lp, p, K, free_uv, tick) if neg else list(range(p))
+    if movable and not _improving(lp, p, free_uv, gbar, neg, tick):
+        movable = []
+    tick.close()
+    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable))
+    for a in movable:
         j = free[a]
         for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
             # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
@@ -995,31 +1120,40 @@ def identify(
             d0 = x[:p] / abs(x[a])
             eps = 0.5 * float(gbar @ d0)
             obj = np.zeros(nv)
-            obj[ia:ia + p] = 1.0
-            obj[ia + a] = 0.0
             bnd = [((None, 0.0) if neg else (None, None))] * p + free_uv + [(0.0, 0.0)] + [(0.0, None)] * p
             bnd[a] = (sgn, sgn)
-            rows = [np.zeros(nv)]
-            rows[0][:p] = -gbar                       # gbar@delta >= eps
-            rhs = [-eps]
-            for b_ in range(p):
-                for sg in (1.0, -1.0):                # a_b >= +-delta_b
-                    r = np.zeros(nv)
-                    r[b_], r[ia + b_] = sg, -1.0
-                    rows.append(r)
-                    rhs.append(0.0)
-            y = lp.solve(obj, bnd, homogeneous=True, extra_A=np.array(rows), extra_b=np.array(rhs))
+            if neg:  # delta <= 0: |delta_i| = -delta_i, no auxiliaries needed
+                obj[:p] = -1.0
+                obj[a] = 0.0
+                bnd[ia:] = [(0.0, 0.0)] * p
+                extra = csr_matrix((-gbar, (np.zeros(p, dtype=np.int64), np.arange(p))), shape=(1, nv))
+            else:  # a_b >= +-delta_b, as sparse rows (2p of them)
+                obj[ia:ia + p] = 1.0
+                obj[ia + a] = 0.0
+                b_ = np.arange(p)
+                rr = np.concatenate([np.zeros(p, dtype=np.int64), 1 + 2 * b_, 1 + 2 * b_, 2 + 2 * b_, 2 + 2 * b_])
+                cc = np.concatenate([b_, b_, ia + b_, b_, ia + b_])
+                vv = np.concatenate([-gbar, np.ones(p), -np.ones(p), -np.ones(p), -np.ones(p)])
+                extra = csr_matrix((vv, (rr, cc)), shape=(2 * p + 1, nv))
+            rhs = np.zeros(extra.shape[0])
+            rhs[0] = -eps                              # gbar@delta >= eps
+            y = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=rhs)
             delta = (y[:p] if y is not None else d0) / s
             recess[j][int(sgn)] = delta / np.abs(delta).max()
         tick.step()
 
     # ---- separating set S_alpha and the separation scales
     zero = np.zeros(nv)
-    separable = lp.solve(zero, w_bounds(), homogeneous=False) is not None
+    x0 = lp.solve(zero, w_bounds(), homogeneous=False)
+    separable = x0 is not None
     rng: dict[int, tuple[float, float]] = {}
     tick.close()
-    tick = _Progress(progress, "identify: separation scales")
+    tick = _Progress(progress and separable and p > 0, "identify: separation scales", total=p)
     if separable:
+        # A point of S_alpha with w_j = 0 settles the upper end of w_j <= 0 (it is 0) without an LP; the vertices
+        # HiGHS returns have few non-zero penalties, so with many features most ends are settled by the points
+        # already found (the feasibility LP's and those of the ends solved so far).
+        at_zero = (x0[:p] == 0.0) if neg else np.zeros(p, dtype=bool)
         for a, j in enumerate(free):
             tick.step()
             ends = []
@@ -1027,11 +1161,16 @@ def identify(
                 if int(sgn) in recess[j]:
                     ends.append(sgn * math.inf)  # a recession direction: that end is at infinity
                     continue
+                if sgn > 0 and at_zero[a]:
+                    ends.append(0.0)
+                    continue
                 obj = np.zeros(nv)
                 obj[a] = -sgn
                 x = lp.solve(obj, w_bounds(), homogeneous=False)
                 if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
                     raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+                if neg:
+                    at_zero |= x[:p] == 0.0
                 ends.append(sgn * math.inf if abs(x[a]) >= 0.5 * _BIG else float(x[a]) / s[a])
             rng[j] = (ends[0], ends[1])
 
@@ -1066,8 +1205,9 @@ def identify(
         direction = None if not ways else ("both" if len(ways) == 2 else ("-inf" if ways[0] < 0 else "+inf"))
         rec = tuple(_named(recess[j][w], free, names) for w in ways)
         if not ident:
-            partners = [names[i] for i in flat_groups[j] if i != j]
-            reason = (f"affinely dependent on {', '.join(partners)}: a combination of these penalties leaves every "
+            partners = [names[i] for i in flat_groups[j][0] if i != j]
+            reason = (f"affinely dependent on {', '.join(partners)}{' and others' if flat_groups[j][1] else ''}: "
+                      "a combination of these penalties leaves every "
                       "return difference unchanged, so only combinations are identified")
         elif direction:
             others = ", ".join(k for k in rec[0] if k != n)

@@ -7,6 +7,7 @@ User errors (bad data, options or config) end with one line ``pbicrl: error: ...
 from __future__ import annotations
 
 import argparse
+import errno
 import functools
 import json
 import os
@@ -36,6 +37,36 @@ __all__ = ["build_parser", "main"]
 
 _USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, ImportError,
                                                PermissionError, IsADirectoryError, NotADirectoryError)
+
+
+# OSErrors that are about the user's files and file systems, not pbicrl: a line, not a traceback
+_USER_ERRNOS = frozenset(getattr(errno, n) for n in ("EACCES", "EPERM", "EROFS", "ENOSPC", "EDQUOT", "ENAMETOOLONG",
+                                                     "ENOENT", "ENOTDIR", "EISDIR", "EEXIST", "ELOOP", "EXDEV")
+                         if hasattr(errno, n))
+# What pbicrl writes beside an output while it works: the claim ``.<name>.lock`` and the temporaries
+# ``.<name>.tmp-<host>.<pid>.<random>`` / ``.<name>.old-...`` (pbicrl._atomic.temporary_prefix)
+_WORK_NAME = re.compile(r"^\.(?P<name>.+?)\.(?:lock|(?:tmp|old)-.*)$")
+
+
+def _output_error(exc: OSError, args: argparse.Namespace) -> str | None:
+    """The message for a failed write through one of pbicrl's own lock or temporary paths: it names the output
+    the user asked for (``--out``) and the problem, not the internal path (``None`` for any other error)."""
+    if not isinstance(exc.filename, (str, bytes, os.PathLike)) or not exc.filename:
+        return None
+    path = Path(os.fsdecode(exc.filename))
+    for part in (path, *path.parents):
+        m = _WORK_NAME.match(part.name)
+        if m:
+            target = part.parent / m.group("name")
+            break
+    else:
+        return None
+    out = getattr(args, "out", None)
+    field = "out: " if out is not None and os.path.abspath(out) == os.path.abspath(target) else ""
+    why = (exc.strerror or type(exc).__name__).lower()
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return f"{field}cannot write {target}: {why} in {target.parent} (choose a directory you can write to)"
+    return f"{field}cannot write {target}: {why}"
 
 
 def _add_model_options(p: argparse.ArgumentParser) -> None:
@@ -491,10 +522,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
     try:
         return int(args.func(args) or 0)
-    except _USER_ERRORS as exc:
-        if os.environ.get("PBICRL_DEBUG"):
+    except (*_USER_ERRORS, OSError) as exc:
+        if os.environ.get("PBICRL_DEBUG") or (not isinstance(exc, _USER_ERRORS) and exc.errno not in _USER_ERRNOS):
             raise
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if isinstance(exc, OSError):
+            msg = _output_error(exc, args) or msg
         from pbicrl.io.runs import OutputExistsError
 
         if isinstance(exc, OutputExistsError):  # the library says overwrite=True; the command line has a flag

@@ -82,6 +82,25 @@ def _is_policy_only(path: Path) -> bool:
     return file_format(path) != MODEL_FORMAT
 
 
+def _read_state(path: Path) -> dict:
+    """A checkpoint's ``state.json``, checked: an object with a number of steps, a wall time and a session list."""
+    from pbicrl.demonstrators import sac_files
+
+    try:
+        state = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise sac_files.SACFileError(f"checkpoint: {path} is not readable JSON ({exc})") from None
+    if not isinstance(state, dict):
+        raise sac_files.SACFileError(f"checkpoint: {path} must hold a JSON object, got {type(state).__name__}")
+    for key, kinds in (("num_timesteps", (int,)), ("wall_time_s", (int, float)), ("sessions", (list,))):
+        if key in state and (not isinstance(state[key], kinds) or isinstance(state[key], bool)):
+            raise sac_files.SACFileError(f"checkpoint: {path}: field '{key}' must be "
+                                         f"{'a list' if key == 'sessions' else 'a number'}, got {state[key]!r}")
+    if not math.isfinite(float(state.get("wall_time_s", 0.0))):
+        raise sac_files.SACFileError(f"checkpoint: {path}: field 'wall_time_s' must be finite")
+    return state
+
+
 def _find_checkpoint(out_dir: Path) -> Path | None:
     clean_stale_temporaries(out_dir / _CKPT)  # a swap killed half-way: put the previous checkpoint back
     for name in (_CKPT, _CKPT_OLD):  # checkpoint.old: the swap of earlier versions, killed half-way
@@ -303,7 +322,7 @@ def train_sac(
     env = Monitor(env_fn())
     ckpt = _find_checkpoint(out_dir)
     if ckpt is not None:
-        state = json.loads((ckpt / "state.json").read_text())
+        state = _read_state(ckpt / "state.json")
         model = sac_files.read_model(ckpt / "model.zip", env, what="checkpoint")
         sac_files.read_replay_buffer(model, ckpt / "replay_buffer.npz")
         sessions = list(state.get("sessions", []))

@@ -282,8 +282,9 @@ def _read_archive(path: Path, fmt: str, what: str) -> tuple[dict[str, Any], dict
     try:
         weights = torch.load(io.BytesIO(raw_weights), weights_only=True, map_location="cpu")
     except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError) as exc:
-        raise SACFileError(f"{what}: {path}: {_WEIGHTS} is not a tensors-only file ({str(exc).splitlines()[0]})") \
-            from None
+        # torch's own message goes on to advise weights_only=False, which is what must not be done with such a file
+        raise SACFileError(f"{what}: {path}: {_WEIGHTS} is not a tensors-only file (damaged, or it holds Python "
+                           "objects, which pbicrl never unpickles)") from None
     _require(isinstance(weights, dict), f"{what}: {path}", f"{_WEIGHTS} must hold a dict")
     return settings, weights
 

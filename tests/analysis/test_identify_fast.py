@@ -1,0 +1,115 @@
+"""The fast identifiability analysis (issue 31 item 9) against the one it replaced and against brute force.
+
+``identify_reference.py`` beside this file is the analysis as it was before (one max-t LP and one sparsest-direction LP
+per unbounded feature, one LP per end of every penalty, probes seeded one matrix product at a time, a p x p null-space
+projector); the current one must give the same answers on small random problems of every kind: separable or not,
+unbounded penalties or not, either sign, margins, single-trajectory groups, affinely dependent candidates.
+"""
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pbicrl.analysis.identify import _GroupLP, _flat_partners, identify
+from pbicrl.inference.data import Dataset
+
+pytest.importorskip("scipy")
+
+_spec = importlib.util.spec_from_file_location("identify_reference", Path(__file__).with_name("identify_reference.py"))
+ref = importlib.util.module_from_spec(_spec)
+sys.modules.setdefault("identify_reference", ref)  # dataclasses look their module up
+_spec.loader.exec_module(ref)
+
+
+def _problem(seed: int) -> tuple[Dataset, dict]:
+    """A small random ranked dataset: a few features that tell the groups apart (cleanly or not), noise features,
+    sometimes a duplicated (affinely dependent) one, groups of one trajectory or of several."""
+    rng = np.random.default_rng(seed)
+    K = int(rng.integers(2, 5))
+    sizes = rng.integers(1, 6, K) if rng.random() < 0.3 else rng.integers(3, 9, K)
+    group = np.repeat(np.arange(1, K + 1), sizes)
+    n = group.size
+    n_sig, n_noise = int(rng.integers(1, 4)), int(rng.integers(0, 5))
+    cols = [rng.uniform(0, 1, n)]  # the nominal feature
+    for _ in range(n_sig):  # grows with the group index: a cost that explains the ranking, with some overlap
+        overlap = rng.choice([0.0, 0.3, 1.5])
+        cols.append(np.clip((group - 1) / K + overlap * rng.uniform(-0.5, 0.5, n) / K, 0, None) * (rng.random(n) < 0.8))
+    cols += [rng.uniform(0, 1, n) for _ in range(n_noise)]
+    if rng.random() < 0.25:
+        cols.append(2.0 * cols[1] + 0.5)  # affinely dependent on the first signal
+    F = np.column_stack(cols)
+    if rng.random() < 0.3:
+        flip = rng.random(n) < 0.15
+        group = group.copy()
+        group[flip] = rng.integers(1, K + 1, int(flip.sum()))
+        group[:K] = np.arange(1, K + 1)  # keep every group
+    names = [f"f{j}" for j in range(F.shape[1])]
+    ds = Dataset(features=F, offsets=np.arange(n + 1), group=group, feature_names=names,
+                 nominal_weights=np.r_[rng.uniform(0, 2), np.zeros(F.shape[1] - 1)])
+    kw = {"penalty_sign": "negative" if rng.random() < 0.7 else "any", "beta": float(rng.choice([0.5, 1.0, 4.0])),
+          "candidates": names[1:]}
+    if rng.random() < 0.4:
+        kw["margins"] = list(rng.uniform(0, 1, len(np.unique(group)) - 1))
+    return ds, kw
+
+
+def _same_direction(a: dict, b: dict) -> bool:
+    keys = set(a) | set(b)
+    return all(abs(a.get(k, 0.0) - b.get(k, 0.0)) <= 1e-6 for k in keys)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_fast_analysis_gives_the_reference_answers(seed):
+    ds, kw = _problem(seed)
+    new, old = identify(ds, **kw), ref.identify(ds, **kw)
+    assert new.separable == old.separable
+    for f, g in zip(new.features, old.features):
+        assert (f.name, f.candidate, f.identifiable, f.unbounded, f.direction) == \
+            (g.name, g.candidate, g.identifiable, g.unbounded, g.direction), (seed, f, g)
+        assert f.reason.split(";")[0] == g.reason.split(";")[0]
+        if g.min_penalty is None:
+            assert f.min_penalty is None
+        else:
+            assert f.min_penalty == pytest.approx(g.min_penalty, rel=1e-6, abs=1e-7)
+            for x, y in zip(f.penalty_range, g.penalty_range):
+                assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-6, abs=1e-7)
+        assert len(f.recession) == len(g.recession)
+        for d_new, d_old in zip(f.recession, g.recession):
+            # the sparsest direction is a vertex of an LP; where there are several, any is right: check it is one
+            if not _same_direction(d_new, d_old):
+                assert sum(map(abs, d_new.values())) <= sum(map(abs, d_old.values())) + 1e-6, (seed, d_new, d_old)
+
+
+def test_the_column_seeding_adds_the_extremes_the_probes_added():
+    rng = np.random.default_rng(5)
+    X = rng.uniform(-1, 1, (40, 6))
+    X[3] = X[7]  # ties: the first member wins, as np.argmin
+    c = rng.uniform(0, 1, 40)
+    starts = np.array([0, 1, 10, 25, 26, 40])
+    lp = _GroupLP(X, c, starts, shift=np.zeros(5), base=0.1)
+    old = ref._GroupLP(X, c, starts, shift=np.zeros(5), base=0.1)
+    assert lp.work == old.work and np.array_equal(lp.in_work, old.in_work)
+
+
+@pytest.mark.parametrize("n, p", [(30, 5), (8, 20)])
+def test_affine_dependence_without_a_p_by_p_projector(n, p):
+    rng = np.random.default_rng(n)
+    X = rng.standard_normal((n, p))
+    X[:, 2] = X[:, 0] - 3 * X[:, 1]  # dependent: 0, 1, 2 (and, with p > n, everything)
+    X -= X.mean(axis=0)
+    got = _flat_partners(X)
+    # the p x p projector on the null space, as the analysis used to build it
+    _, sv, vt = np.linalg.svd(X)
+    tol = sv.max() * max(X.shape) * np.finfo(float).eps
+    Z = vt[np.r_[sv, np.zeros(p - sv.size)] <= tol].T
+    linked = np.abs(Z @ Z.T) > 1e-8
+    want = {a: list(np.flatnonzero(linked[a])) for a in range(p) if linked[a, a]}
+    assert set(got) == set(want)
+    for a, (bs, more) in got.items():
+        assert bs == want[a][:20] and more == (len(want[a]) > 20)
+    if n > p:
+        assert set(got) == {0, 1, 2}
