@@ -79,6 +79,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "make_task_env",
     "CHECKPOINT",
     "METHODS",
     "CheckpointPolicy",
@@ -201,7 +202,8 @@ def EpisodeRecorder(env: Any, sink: list[dict[str, Any]]) -> Any:  # noqa: N802 
     return _RECORDER(env, sink)
 
 
-def _make_env(task: str) -> Any:
+def make_task_env(task: str) -> Any:
+    """The Gymnasium environment of an ICRL benchmark task (its registered id, default settings)."""
     import gymnasium as gym
 
     from pbicrl.envs import register_envs
@@ -249,7 +251,7 @@ def _evaluate(agent: Any, task: str, n_episodes: int, seed: int) -> dict[str, An
     import torch
 
     sink: list[dict[str, Any]] = []
-    env = EpisodeRecorder(_make_env(task), sink)
+    env = EpisodeRecorder(make_task_env(task), sink)
     gen = torch.Generator().manual_seed(seed)
     try:
         for k in range(n_episodes):
@@ -377,7 +379,7 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
             cost_fn = lambda cs: icc.costs(features=np.asarray(cs)[:, 1:], states=np.asarray(cs)[:, :1])  # noqa: E731
         else:
             cost_fn = lambda xs: np.zeros(np.asarray(xs).shape[0])  # noqa: E731
-        agent = PPOLagrangian(lambda: EpisodeRecorder(_make_env(spec.name), sink), coord_fn, cost_fn, cfg,
+        agent = PPOLagrangian(lambda: EpisodeRecorder(make_task_env(spec.name), sink), coord_fn, cost_fn, cfg,
                               seed=int(seed), fused_optimizer=True)
         curve, evals = run / "curve.jsonl", run / "eval.jsonl"
         state: dict[str, Any] = {"curve_bytes": 0, "eval_bytes": 0, "episodes": 0, "best_reward_nc": -math.inf,
@@ -480,7 +482,7 @@ def _inferred_cost(task: str, method: str, run_dir: str | os.PathLike[str] | Non
     summary = Path(run_dir) / "summary.json"
     if not summary.is_file():
         raise ValueError(f"inferred_run: {run_dir} has no summary.json (not a pbicrl infer run directory)")
-    env = _make_env(task)
+    env = make_task_env(task)
     try:
         icc = InferredConstraintCost(env, run_dir, mode=mode)
     finally:
@@ -593,7 +595,7 @@ def rollout_episodes(task: str, policy: Callable[[Any], Any], episodes: int, *, 
     """
     if int(episodes) < 1:
         raise ValueError(f"episodes: must be >= 1, got {episodes!r}")
-    env = _make_env(task)
+    env = make_task_env(task)
     low, high = env.action_space.low, env.action_space.high
     out = []
     try:

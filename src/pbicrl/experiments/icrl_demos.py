@@ -319,9 +319,9 @@ def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrain
             raise ValueError(f"{name}: {pol.obs_dim}-dimensional observations; {spec.name} has {spec.obs_dim}")
     import gymnasium as gym  # noqa: F401  (the environment's dt)
 
-    from pbicrl.experiments.icrl_benchmark import _make_env
+    from pbicrl.experiments.icrl_benchmark import make_task_env
 
-    env = _make_env(spec.name)
+    env = make_task_env(spec.name)
     dt = float(env.unwrapped.dt)
     env.close()
 
