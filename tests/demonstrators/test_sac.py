@@ -208,6 +208,22 @@ def test_checkpoint_swap_is_atomic_follows_the_umask_and_a_killed_swap_is_undone
     assert sorted(p.name for p in out.iterdir()) == ["checkpoint"]
 
 
+def test_a_checkpoint_without_its_replay_buffer_is_refused_not_overwritten(tmp_path):
+    """A model and state without replay_buffer.npz cannot be resumed; starting afresh would replace the model
+    at the first save, so the run is refused with the folder named and the files left as they were."""
+    from pbicrl.demonstrators.sac import _find_checkpoint
+
+    ckpt = tmp_path / "run" / "checkpoint"
+    ckpt.mkdir(parents=True)
+    (ckpt / "model.zip").write_text("a model someone trained for days")
+    (ckpt / "state.json").write_text('{"num_timesteps": 100}')
+    with pytest.raises(ValueError, match="without its replay buffer") as err:
+        _find_checkpoint(tmp_path / "run")
+    assert str(ckpt) in str(err.value)
+    assert (ckpt / "model.zip").read_text() == "a model someone trained for days"
+    assert _find_checkpoint(tmp_path / "elsewhere") is None  # no checkpoint at all: a fresh run
+
+
 def test_prefill_fills_the_warm_start_buffer_with_the_loaded_policy_before_training(tmp_path):
     src = tmp_path / "src"
     train_sac(_pendulum, 150, src, seed=4, **TINY)

@@ -113,6 +113,10 @@ def _find_checkpoint(out_dir: Path) -> Path | None:
                                  "pbicrl no longer reads (opening it could run code stored in it); convert a run "
                                  "you trust with pbicrl.demonstrators.sac_files.convert_sb3_checkpoint("
                                  f"{str(out_dir)!r}), or choose another out_dir")
+            # a model without its replay buffer: training afresh would replace it at the first save
+            raise ValueError(f"out_dir: {d} holds a checkpoint without its replay buffer (replay_buffer.npz), so "
+                             "it cannot be resumed; pbicrl does not start afresh over it (the first save would "
+                             "replace the model). Move it away to keep it, or choose another out_dir")
     return None
 
 
