@@ -204,9 +204,10 @@ def test_close_loop_smoke(tmp_path):
     res = json.loads((tmp_path / "cl" / "results.json").read_text())
     assert set(res["envs"]) == {"point_mass", "halfcheetah"}
     assert res["envs"]["point_mass"]["identical_to_true"] == {"inferred": True}  # selected set = true regions
-    assert set(res["envs"]["halfcheetah"]["policies"]) == {"nominal", "true", "inferred", "inferred-probability"}
+    assert set(res["envs"]["halfcheetah"]["policies"]) == {"nominal", "true", "inferred", "inferred-conservative",
+                                                           "inferred-probability"}
     table = (tmp_path / "cl" / "table.md").read_text()
-    assert table.count("\n") == 2 + 3 + 4
+    assert table.count("\n") == 2 + 3 + 5
     assert close_loop(args) == 0  # everything cached: nothing retrained
     from pbicrl.experiments.kinds import shipped_data_tag
 

@@ -111,10 +111,14 @@ def default_config(pm_steps: int = 100_000, hc_steps: int = 200_000, seeds: int 
     about 50 k steps here), multiplier step 0.2, 20 k warm-up steps (a random walk from the edges enters the
     discs, and with :math:`D = 0.1` the multiplier it raises falls by only 0.005 per update: without the
     warm-up a policy learned to stand still). HalfCheetah: the default PPO settings, no warm-up (a random
-    policy never reaches the wall); with ``hc_probability`` also an ``inferred-probability`` policy (the
-    rankings do not identify the wall's location, see the docs).
+    policy never reaches the wall), an ``inferred-conservative`` policy (the wall at the edge of the identified
+    region nearest the good demonstrations, the default of :class:`~pbicrl.envs.inferred_cost.InferredConstraintCost`
+    for parametric constraints) beside ``inferred`` (indicator: the wall at the posterior median); with
+    ``hc_probability`` also an ``inferred-probability`` policy (the rankings do not identify the wall's location,
+    see the docs).
     """
-    hc_pol = ("nominal", "true", "inferred") + (("inferred-probability",) if hc_probability else ())
+    hc_pol = ("nominal", "true", "inferred", "inferred-conservative") + (("inferred-probability",) if hc_probability
+                                                                          else ())
     wall = [{"family": "axis_halfspace", "dims": [0], "direction": ">=", "name": "wall"}]
     return CloseLoopConfig(
         plans=(EnvPlan("point_mass", pm_steps, tuple(range(seeds)), pm_cost_limit,
