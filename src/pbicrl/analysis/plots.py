@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +34,7 @@ from typing import Any, Callable, Mapping, Sequence, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl._atomic import atomic_path
+from pbicrl._atomic import atomic_path, read_json
 from pbicrl.analysis import style as _style
 
 __all__ = ["plot_traces", "plot_posteriors", "plot_p_constraint", "plot_pairs", "plot_rewards", "plot_run",
@@ -948,12 +947,7 @@ def parse_truth(text: str | None, feature_names: Sequence[str],
 def _parse_truth(text: str, names: list[str]) -> dict[str, float]:
     p = Path(text)
     if p.suffix == ".json" or p.is_file():
-        if not p.is_file():
-            raise FileNotFoundError(f"truth: {p}: no such file")
-        try:
-            obj = json.loads(p.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"truth: {p} is not valid JSON ({exc})") from None
+        obj = read_json(p, "truth")
         if isinstance(obj, dict) and "true_penalty" in obj:
             obj = obj["true_penalty"]
         if isinstance(obj, list):
