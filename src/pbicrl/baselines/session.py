@@ -4,8 +4,9 @@
 * :class:`StopSignals` - SIGTERM and SIGINT note a stop request, so the run writes its checkpoint and stops;
 * :func:`progress_logger` - timestamped lines appended to the run's ``progress.log`` (and echoed to stderr);
 * :func:`library_versions` - versions of Python and the libraries a run depends on, for its ``budget.json``.
+* :func:`load_safely` - ``torch.load(weights_only=True)`` of a checkpoint, with one message for every failure.
 
-Standard library only, so importing it needs no optional extra.
+Standard library only, so importing it needs no optional extra (:func:`load_safely` imports torch when called).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["StopSignals", "library_versions", "progress_logger"]
+__all__ = ["StopSignals", "library_versions", "progress_logger", "load_safely"]
 
 
 class StopSignals:
@@ -93,3 +94,31 @@ def library_versions(modules: Sequence[str] = ("numpy", "torch", "gymnasium", "m
             if note_failures:
                 out[mod] = f"unknown ({type(exc).__name__})"
     return out
+
+
+def load_safely(path: Path, what: str, hint: str, *, safe_globals: Sequence[Any] = ()) -> Any:
+    """``torch.load(path, weights_only=True)``: tensors and plain values only (plus ``safe_globals``), so that a
+    file put into a run directory by someone else cannot run code.
+
+    Raises
+    ------
+    ValueError
+        ``"{what}: {path} cannot be loaded safely (<error>); {hint}"`` when the file is damaged or holds anything
+        else (torch's own advice to pass ``weights_only=False`` is left out of the message).
+    """
+    import pickle
+
+    import torch
+
+    ctx = getattr(torch.serialization, "safe_globals", None)
+    try:
+        if safe_globals and ctx is not None:
+            with ctx(list(safe_globals)):
+                return torch.load(path, weights_only=True, map_location="cpu")
+        return torch.load(path, weights_only=True, map_location="cpu")  # older torch: tensors and plain values
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()] or [type(exc).__name__]
+        # torch's own text suggests weights_only=False, exactly what must not be done with a file of unknown origin
+        first = next((ln for ln in lines if "global" in ln.lower() and "weights_only" not in ln), lines[0])
+        raise ValueError(f"{what}: {path} cannot be loaded safely ({type(exc).__name__}: {first[:200]}); "
+                         f"{hint}") from None

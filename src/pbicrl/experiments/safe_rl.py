@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
+from pbicrl.baselines.session import StopSignals, library_versions, load_safely, progress_logger
 from pbicrl._moved import moved_to_cli
 
 __all__ = [
@@ -210,16 +210,7 @@ class SafePolicy:
 
 
 def _torch_load(path: Path, what: str) -> dict[str, Any]:
-    import pickle
-
-    import torch
-
-    try:
-        obj = torch.load(path, weights_only=True, map_location="cpu")
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ValueError(f"{what}: {path} cannot be loaded safely ({type(exc).__name__}: {first[:160]}); it is not a "
-                         "file of pbicrl train-safe, or it is damaged") from None
+    obj = load_safely(path, what, "it is not a file of pbicrl train-safe, or it is damaged")
     if not isinstance(obj, dict) or obj.get("kind") != _KIND:
         raise ValueError(f"{what}: {path} is not a pbicrl train-safe file")
     return obj
