@@ -1,4 +1,5 @@
-"""The parts every long training run shares: stop signals, the session clock, the progress log, the recorded versions."""
+"""The parts every long training run shares: stop signals, the session clock, the progress log, the recorded
+versions."""
 
 from __future__ import annotations
 
