@@ -231,7 +231,7 @@ def _speed(env: Any, x_before: float, x_after: float) -> float:
 
 
 class _RunMixin(_ICRLMixin):
-    """Half-Cheetah and Swimmer: the x position in the observation; reward speed :math:`|\Delta x|/\Delta t` minus
+    r"""Half-Cheetah and Swimmer: the x position in the observation; reward speed :math:`|\Delta x|/\Delta t` minus
     ``_ctrl_weight`` :math:`\lVert a \rVert^2`, features (speed, :math:`\lVert a \rVert^2`)."""
 
     _ctrl_weight: float
