@@ -10,7 +10,7 @@ import pytest
 
 from pbicrl import _atomic
 from pbicrl._atomic import (OutputExistsError, atomic_dir, atomic_path, clean_stale_temporaries, copy_file,
-                            temporary_prefix, write_bytes, write_json, write_text)
+                            read_json, read_toml, temporary_prefix, write_bytes, write_json, write_text)
 
 
 @pytest.fixture
@@ -83,3 +83,38 @@ def test_temporaries_of_dead_writers_are_removed_and_moved_content_restored(tmp_
     removed = clean_stale_temporaries(target)
     assert sorted(removed) == sorted([dead_tmp, old])
     assert (target / "summary.json").exists() and live_tmp.exists()
+
+
+class _Refused(ValueError):
+    pass
+
+
+def test_read_json_and_toml_read_what_the_writers_write(tmp_path):
+    write_json(tmp_path / "a.json", {"x": [1, 2.5]})
+    assert read_json(tmp_path / "a.json", "truth") == {"x": [1, 2.5]}
+    write_text(tmp_path / "a.toml", "[base]\niterations = 10\n")
+    assert read_toml(tmp_path / "a.toml", "config") == {"base": {"iterations": 10}}
+
+
+@pytest.mark.parametrize("reader, kind", [(read_json, "JSON"), (read_toml, "TOML")])
+def test_read_json_and_toml_name_the_field_and_the_problem(tmp_path, reader, kind):
+    with pytest.raises(FileNotFoundError, match=r"^--groups: .*nope: no such file$"):
+        reader(tmp_path / "nope", "--groups")
+    with pytest.raises(_Refused, match="^cfg: .*nope: no such file"):  # a caller's own class for a missing file
+        reader(tmp_path / "nope", "cfg", missing=_Refused)
+    with pytest.raises(_Refused, match=f"is a directory, not a {kind} file"):
+        reader(tmp_path, "cfg", error=_Refused)
+    bad = tmp_path / "bad"
+    bad.write_text("{[ not this")
+    with pytest.raises(_Refused, match=f"^cfg: .*bad is not valid {kind} "):
+        reader(bad, "cfg", error=_Refused)
+    bad.write_bytes(b"\xff\xfe")
+    with pytest.raises(ValueError, match=f"is not UTF-8 text \\(not a {kind} file\\)"):
+        reader(bad, "cfg")
+
+
+def test_read_json_refuses_absurd_nesting_with_the_same_message(tmp_path):
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000)
+    with pytest.raises(ValueError, match="not valid JSON"):
+        read_json(deep, "truth")

@@ -226,7 +226,7 @@ def test_complex_bytes_and_objects_are_never_silently_converted(tmp_path):
         Dataset(features=np.ones((2, 1)) + 0.5j, offsets=[0, 1, 2], group=[1, 2])
     with pytest.raises(DatasetError, match="nominal_weights: complex"):
         Dataset(features=np.ones((2, 1)), offsets=[0, 1, 2], group=[1, 2], nominal_weights=[1 + 1j])
-    with pytest.raises(DatasetError, match="features: trajectory 0 has complex values"):
+    with pytest.raises(DatasetError, match="features: trajectory 0: complex values"):
         Dataset.from_trajectories([np.ones((2, 1), dtype=complex), np.ones((1, 1))], [1, 2])
     p = tmp_path / "c.npz"
     np.savez(p, features=np.ones((2, 1)) + 1j, offsets=[0, 1, 2], group=[1, 2])

@@ -281,4 +281,4 @@ def test_cli_learning_rates_and_limit_warning(every_step_run, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["train-safe", str(every_step_run), "--env", "point_mass", "--steps", "200", "--out", str(tmp_path / "n"),
               "--lr", "0"])
-    assert "expected a finite number > 0" in capsys.readouterr().err
+    assert "expected a positive number" in capsys.readouterr().err

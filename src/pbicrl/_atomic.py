@@ -8,6 +8,9 @@ parent directory so that the rename survives a crash. A writer killed half-way l
 process is gone; :func:`clean_stale_temporaries` removes those (and puts back a previous content a replace
 moved aside).
 
+:func:`read_json` and :func:`read_toml` are the matching readers of a small input document (a truth file, a
+``--groups`` mapping, a sweep or config file): one set of checks and messages for every caller.
+
 This module uses the standard library only, so that every other module can import it at module level.
 """
 
@@ -20,6 +23,7 @@ import shutil
 import socket
 import tempfile
 import time
+import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -28,7 +32,7 @@ __all__ = [
     "FILE_MODE", "DIR_MODE", "OutputExistsError", "OutputBusyError", "umask", "host_tag", "pid_alive",
     "temporary_prefix", "clean_stale_temporaries", "atomic_path", "atomic_file", "write_bytes", "write_text",
     "write_json", "copy_file", "atomic_dir", "fsync_tree", "apply_mode", "OUTPUT_MARKER", "mark_output",
-    "read_marker", "inputs_inside", "check_replaceable", "check_file_output",
+    "read_marker", "inputs_inside", "check_replaceable", "check_file_output", "read_json", "read_toml",
 ]
 
 FILE_MODE = 0o666
@@ -276,6 +280,53 @@ def copy_file(src: str | os.PathLike[str], dst: str | os.PathLike[str], *, overw
     with atomic_path(dst, overwrite=overwrite) as tmp:
         shutil.copyfile(src, tmp)
     return Path(dst)
+
+
+# ---------------------------------------------------------------------------------------------- input documents
+def _read_document(path: str | os.PathLike[str], what: str, kind: str, parse: Callable[[str], Any],
+                   error: type[Exception], missing: type[Exception]) -> Any:
+    path = Path(path)
+    if not path.exists():
+        raise missing(f"{what}: {path}: no such file")
+    if not path.is_file():
+        raise error(f"{what}: {path} is {'a directory' if path.is_dir() else 'not a regular file'}, "
+                    f"not a {kind} file")
+    try:
+        return parse(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:  # before ValueError, which it is
+        raise error(f"{what}: {path} is not UTF-8 text (not a {kind} file)") from None
+    except OSError as exc:
+        raise error(f"{what}: {path} cannot be read ({exc.strerror or exc})") from None
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, TOMLDecodeError; absurd nesting recurses
+        raise error(f"{what}: {path} is not valid {kind} ({exc})") from None
+
+
+def read_json(path: str | os.PathLike[str], what: str, *, error: type[Exception] = ValueError,
+              missing: type[Exception] = FileNotFoundError) -> Any:
+    """The JSON document in the UTF-8 file ``path``; every message starts with ``what`` (the field that named it).
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        The option or field the path came from (``"truth"``, ``"--groups"``).
+    error : exception class
+        Raised when ``path`` is not a regular file, cannot be read or is not valid JSON.
+    missing : exception class
+        Raised when ``path`` does not exist.
+
+    Returns
+    -------
+    Any
+        What ``json.loads`` makes of the text.
+    """
+    return _read_document(path, what, "JSON", json.loads, error, missing)
+
+
+def read_toml(path: str | os.PathLike[str], what: str, *, error: type[Exception] = ValueError,
+              missing: type[Exception] = FileNotFoundError) -> dict[str, Any]:
+    """The TOML document in the UTF-8 file ``path`` as a dict; the checks and messages of :func:`read_json`."""
+    return _read_document(path, what, "TOML", tomllib.loads, error, missing)
 
 
 # ---------------------------------------------------------------------------------------------- directories

@@ -10,11 +10,12 @@ Old names (:data:`DEPRECATED_NAMES`, e.g. ``method`` for ``sampler``) are accept
 from __future__ import annotations
 
 import copy
-import tomllib
 from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
+
+from pbicrl._atomic import read_toml
 
 __all__ = ["InferConfig", "ConfigError", "DEPRECATED_NAMES", "canonical_names", "accept_old_names", "check_setting",
            "load_config"]
@@ -325,20 +326,7 @@ def load_config(path: str | Path) -> InferConfig:
         Missing or unreadable file, invalid TOML, unknown keys or tables, wrong types, integers out of range,
         malformed constraint ``dims`` (not non-negative integers, repeated).
     """
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"config: {path}: no such file")
-    if not path.is_file():
-        raise ConfigError(f"config: {path} is {'a directory' if path.is_dir() else 'not a regular file'}, "
-                          "not a TOML file")
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config: {path} is not valid TOML ({exc})") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"config: {path} is not UTF-8 text (not a TOML file)") from None
-    except OSError as exc:
-        raise ConfigError(f"config: {path} cannot be read ({exc.strerror or exc})") from None
+    raw = read_toml(path, "config", error=ConfigError, missing=ConfigError)
     known = set(_FIELDS) | set(DEPRECATED_NAMES)
     if "infer" in raw:
         table = raw["infer"]

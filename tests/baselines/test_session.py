@@ -1,4 +1,5 @@
-"""The parts every long training run shares: stop signals, the progress log, the recorded versions."""
+"""The parts every long training run shares: stop signals, the session clock, the progress log, the recorded
+versions."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import re
 import signal
 import threading
 
-from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
+from pbicrl.baselines.session import SessionClock, StopSignals, library_versions, progress_logger
 
 
 def test_sigterm_and_sigint_become_a_stop_request_until_restored():
@@ -65,3 +66,20 @@ def test_versions_leave_out_or_note_a_library_that_is_missing():
     assert noted["numpy"] == __import__("numpy").__version__
     # the default set is what ICL and train-safe record
     assert {"python", "numpy"} <= set(library_versions()) <= {"python", "numpy", "torch", "gymnasium", "mujoco"}
+
+
+def test_the_session_clock_checkpoints_every_n_steps_and_ends_a_limited_session():
+    saved: list[tuple[str, int]] = []
+    steps = {"now": 1000}  # a resumed run: the session starts at 1000 steps
+    stop = StopSignals()
+    clock = SessionClock(lambda status: saved.append((status, steps["now"])), stop, 1000, every=300,
+                         max_session_steps=700)
+    for now in (1200, 1300, 1500, 1550):
+        steps["now"] = now
+        assert clock.tick(now)
+    assert saved == [("running", 1300)]  # 300 steps after the start, then not again until 1600
+    steps["now"] = 1700
+    assert not clock.tick(1700)  # 700 steps in this session: stop, after the checkpoint
+    assert saved == [("running", 1300), ("running", 1700)] and stop.requested
+    unlimited = SessionClock(lambda status: None, StopSignals(), 0, every=10)
+    assert unlimited.tick(10**9)

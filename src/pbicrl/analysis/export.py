@@ -76,6 +76,7 @@ from pbicrl._atomic import OutputExistsError, atomic_path
 from pbicrl.analysis.diagnostics import INSTALL_HINT, arviz_major, require_arviz
 from pbicrl.inference.codes import MOVES
 from pbicrl.inference.constraints import constraint_set_of
+from pbicrl.inference.draws import parameter_draws
 
 if TYPE_CHECKING:
     from pbicrl.inference.constraints import ConstraintSet
@@ -464,17 +465,6 @@ def _json_default(o: Any) -> Any:
     return str(o)
 
 
-def _params(post: Any) -> tuple[NDArray[np.float64] | None, list[str]]:
-    params = getattr(post, "parameters", None)
-    if params is None or not np.size(params):
-        return None, []
-    params = np.asarray(params, dtype=np.float64)
-    if params.ndim == 2:
-        params = params[:, :, None]
-    pnames = list(getattr(post, "parameter_names", None) or [f"theta{k}" for k in range(params.shape[2])])
-    return params, [str(n) for n in pnames]
-
-
 def _sample_stats(post: Any) -> dict[str, tuple[NDArray, dict[str, Any]]]:
     """Per-draw statistics: totals always; move type and acceptance when the chains carry them."""
     ll = np.asarray(post.log_likelihood, dtype=np.float64)
@@ -588,7 +578,7 @@ def _datasets(post: Any, *, dataset: Any, likelihood: Any, constraints: Any, poi
             post_vars["penalty_weight"] = (("chain", "draw", "feature"), wp[:, :, vp],
                                            {"long_name": "penalty weight w_p (latent while c = 0)"})
         coords["feature"] = [str(n) for n in names_arr[vp]]
-    params, pnames = _params(post)
+    params, pnames = parameter_draws(post)
     if params is not None:
         post_vars["parameter"] = (("chain", "draw", "param"), params,
                                   {"long_name": "constraint parameters (NaN while the constraint is inactive)"})

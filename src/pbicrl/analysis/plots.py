@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,8 +34,9 @@ from typing import Any, Callable, Mapping, Sequence, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl._atomic import atomic_path
+from pbicrl._atomic import atomic_path, read_json
 from pbicrl.analysis import style as _style
+from pbicrl.inference.draws import parameter_draws
 
 __all__ = ["plot_traces", "plot_posteriors", "plot_p_constraint", "plot_pairs", "plot_rewards", "plot_run",
            "map_returns", "estimate_returns", "true_returns", "parse_truth", "check_truth", "FORMATS", "DEFAULT_DPI",
@@ -93,17 +93,6 @@ def _colors(n: int) -> list:
 
 
 # --------------------------------------------------------------------------------------------- run views
-def _params(post: Any) -> tuple[NDArray[np.float64] | None, list[str]]:
-    p = getattr(post, "parameters", None)
-    if p is None or not np.size(p):
-        return None, []
-    p = np.asarray(p, dtype=np.float64)
-    if p.ndim == 2:
-        p = p[:, :, None]
-    names = list(getattr(post, "parameter_names", None) or [f"theta{k}" for k in range(p.shape[2])])
-    return p, names
-
-
 def _owner(post: Any, pnames: Sequence[str]) -> list[int | None]:
     """Feature index of the constraint each parameter belongs to (``name.param`` convention as fallback)."""
     own = getattr(post, "parameter_owner", None)
@@ -347,7 +336,7 @@ def plot_traces(post: Any, *, truth: Mapping[str, float] | None = None,
     ind = np.asarray(post.indicators).astype(bool)
     eff = ind * np.asarray(post.penalty_weights, dtype=np.float64)
     wb = _weight_bounds(post)
-    params, pnames = _params(post)
+    params, pnames = parameter_draws(post)
     owner = _owner(post, pnames) if params is not None else []
     pb = _param_bounds(post, pnames)
     rows: list[_TraceRow] = []
@@ -473,7 +462,7 @@ def plot_posteriors(post: Any, *, truth: Mapping[str, float] | None = None,
     c = np.asarray(post.indicators).reshape(-1, len(names)).astype(bool)
     w = np.asarray(post.penalty_weights, dtype=np.float64).reshape(-1, len(names))
     wb = _weight_bounds(post)
-    params, pnames = _params(post)
+    params, pnames = parameter_draws(post)
     meaning = _meaning(post)
     model = _in_model(post, len(names))
     c = c & model  # bpl: a non-candidate is not in the model (no draws to show)
@@ -647,7 +636,7 @@ def plot_pairs(post: Any, *, truth: Mapping[str, float] | None = None,
     -------
     matplotlib.figure.Figure
     """
-    params, pnames = _params(post)
+    params, pnames = parameter_draws(post)
     if params is None:
         return None
     Figure = _mpl()
@@ -779,7 +768,7 @@ def true_returns(post: Any, dataset: Any,
     if not truth:
         return None, names
     missing = [n for n in names if _truth_value(truth, n) is None]
-    params, pnames = _params(post)
+    params, pnames = parameter_draws(post)
     theta = None
     if pnames:
         owner = _owner(post, pnames)
@@ -948,12 +937,7 @@ def parse_truth(text: str | None, feature_names: Sequence[str],
 def _parse_truth(text: str, names: list[str]) -> dict[str, float]:
     p = Path(text)
     if p.suffix == ".json" or p.is_file():
-        if not p.is_file():
-            raise FileNotFoundError(f"truth: {p}: no such file")
-        try:
-            obj = json.loads(p.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"truth: {p} is not valid JSON ({exc})") from None
+        obj = read_json(p, "truth")
         if isinstance(obj, dict) and "true_penalty" in obj:
             obj = obj["true_penalty"]
         if isinstance(obj, list):

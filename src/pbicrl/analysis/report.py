@@ -126,14 +126,10 @@ def table(post: Any, width: int = 100) -> str:
 
     ``*`` marks an interval end that comes from the prior (see :meth:`~pbicrl.inference.posterior.Posterior.prior_driven`).
     """
-    names = list(post.feature_names)
-    nw = min(24, max(8, max(len(n) for n in names)))
-    cs = post.conditional_summary()
-    pd = post.prior_driven()
+    rows = [r for r in records(post) if r["kind"] == "feature"]  # the numbers; here only how they are shown
+    nw = min(24, max(8, max(len(r["name"]) for r in rows)))
     ends = post.end_flags()
     sens = post.prior_sensitivity()
-    mins = post.min_penalty()
-    skip = post.not_identifiable()
     diag = post.diagnostics()
     meaning = post.indicator_meaning
     c1, c2 = INDICATOR_COLUMNS[meaning]
@@ -142,15 +138,15 @@ def table(post: Any, width: int = 100) -> str:
     head = (f"{'feature':<{nw}}  {c1:>{w1}}  {c2:>{w2}}  {'min|w_p|':>8}  {'med|c=1':>9}  "
             f"{'90% interval | c=1':^24}  {'R-hat':>6}  {'ESS':>6}")
     lines = [head, "-" * len(head)]
-    rows = [r for r in records(post) if r["kind"] == "feature"]
-    for j, n in enumerate(names):
-        a, b = _indicator_cells(rows[j], meaning)
+    for j, r in enumerate(rows):
+        n = r["name"]
+        a, b = _indicator_cells(r, meaning)
         if meaning != "fixed" and sens.flags["p_constraint"][j]:
             a += "*"
-        mp = "n/a" if n in skip else _num(mins[j], 8) if model[j] else "-"
+        mp = "n/a" if not r["identifiable"] else _num(r["min_penalty"], 8) if model[j] else "-"
         lo_d, med_d, hi_d = ends[j]
-        iv = _interval(cs["low"][j], cs["high"][j], marks=(bool(lo_d), bool(hi_d)))
-        med = _num(cs["median"][j], 8) + ("*" if med_d and math.isfinite(cs["median"][j]) else "")
+        iv = _interval(r["ci90_low"], r["ci90_high"], marks=(bool(lo_d), bool(hi_d)))
+        med = _num(r["median"], 8) + ("*" if med_d and math.isfinite(r["median"]) else "")
         lines.append(f"{_cut(n, nw):<{nw}}  {a:>{w1}}  {b:>{w2}}  {mp:>8}  "
                      f"{med:>9}  {iv}  {diag.cells('feature', n, compact=True)}")
     psum = post.parameter_summary()
@@ -165,7 +161,7 @@ def table(post: Any, width: int = 100) -> str:
             rs = "-" if rng is None else f"[{_num(rng[0], 9)}, {_num(rng[1], 9)}]"
             lines.append(f"{_cut(n, pw):<{pw}}  {_num(v['median'], 9):>9}  {iv}  {rs:^21}  "
                          f"{diag.cells('parameter', n, compact=True)}")
-    for line in footer(post, psum, pd, skip, diag):
+    for line in footer(post, psum, diag=diag):
         lines.extend(textwrap.wrap(line, width=width, subsequent_indent="  ", break_on_hyphens=False) or [""])
     return "\n".join(lines)
 

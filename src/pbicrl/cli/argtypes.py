@@ -9,7 +9,8 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 __all__ = ["DeprecatedFlag", "standalone_parser", "finite_float_or_auto", "floats", "iterations", "margins",
-           "nonneg_int", "pairs", "port", "positive_float", "positive_int", "power", "probability", "rhat_target"]
+           "nonneg_float", "nonneg_int", "open_unit", "pairs", "port", "positive_float", "positive_int", "power",
+           "probability", "rhat_target"]
 
 
 def floats(text: str) -> list[float]:
@@ -71,6 +72,16 @@ def nonneg_int(text: str) -> int:
 def positive_float(text: str) -> float:
     """A finite number > 0 (NaN is not)."""
     return _number(text, float, lambda x: 0 < x < float("inf"), "a positive number")
+
+
+def nonneg_float(text: str) -> float:
+    """A finite number >= 0 (NaN is not)."""
+    return _number(text, float, lambda x: 0 <= x < float("inf"), "a finite number >= 0")
+
+
+def open_unit(text: str) -> float:
+    """A number in the open interval (0, 1)."""
+    return _number(text, float, lambda x: 0.0 < x < 1.0, "a number in (0, 1)")
 
 
 def finite_float_or_auto(text: str) -> float | str:

@@ -84,12 +84,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     out = args.out or Path("runs") / "envs" / f"{args.env}_{args.reward}"
     kwargs = dict(seed=args.seed, checkpoint_every=args.checkpoint_every, log_every=args.log_every,
                   torch_threads=args.torch_threads, progress=not args.quiet)
-    if args.learning_starts is not None:
-        kwargs["learning_starts"] = args.learning_starts
-    if args.shaping_scale is not None:
-        kwargs["shaping_scale"] = args.shaping_scale
-    if args.init_from is not None:
-        kwargs["init_from"] = args.init_from
+    kwargs.update({k: getattr(args, k) for k in ("learning_starts", "shaping_scale", "init_from")
+                   if getattr(args, k) is not None})  # given: passed on; else the trainer's defaults
     if args.relabel_from is not None:
         from pbicrl.demonstrators.navigation import NAV_ENVS, relabelled_warm_start
 

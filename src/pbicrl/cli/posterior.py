@@ -22,6 +22,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from pbicrl._atomic import read_json
 from pbicrl.cli.argtypes import floats as _floats
 from pbicrl.cli.argtypes import positive_int as _positive_int
 
@@ -192,12 +193,7 @@ def _cmd_import_minari(args: argparse.Namespace) -> int:
     if args.groups:
         gp = Path(args.groups)
         if gp.suffix == ".json":
-            if not gp.is_file():
-                raise FileNotFoundError(f"--groups: {gp}: no such file")
-            try:
-                groups = json.loads(gp.read_text())
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"--groups: {gp} is not valid JSON ({exc})") from None
+            groups = read_json(gp, "--groups")
             if isinstance(groups, dict):
                 groups = {str(k): v for k, v in groups.items()}
         else:

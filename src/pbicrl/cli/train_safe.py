@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -38,34 +37,7 @@ def _cmd_train_safe(args: argparse.Namespace) -> int:
 
 def add_subcommands(sub: Any) -> None:
     """Register ``pbicrl train-safe`` (imports nothing optional until it runs)."""
-    from pbicrl.cli.argtypes import nonneg_int, positive_int
-
-    def limit(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-        if not (math.isfinite(v) and v >= 0):
-            raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-        return v
-
-    def positive_float(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-        if not (math.isfinite(v) and v > 0):
-            raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-        return v
-
-    def unit(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-        if not 0.0 < v < 1.0:
-            raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
-        return v
+    from pbicrl.cli.argtypes import nonneg_float, nonneg_int, open_unit, positive_float, positive_int
 
     p = sub.add_parser("train-safe", help="train a policy under an inferred constraint (PPO-Lagrangian; extras rl, envs)",
                        description="Constrained RL on the cost of an inferred constraint: maximise the nominal return "
@@ -74,7 +46,7 @@ def add_subcommands(sub: Any) -> None:
     p.add_argument("run", nargs="?", type=Path, help="run directory of pbicrl infer (needed for --cost inferred)")
     p.add_argument("--env", required=True, choices=ENVS, help="environment (its nominal reward is the objective)")
     p.add_argument("--steps", required=True, type=positive_int, help="total environment steps")
-    p.add_argument("--cost-limit", type=limit, default=DEFAULT_COST_LIMIT,
+    p.add_argument("--cost-limit", type=nonneg_float, default=DEFAULT_COST_LIMIT,
                    help=f"budget D on the expected cost per episode (default {DEFAULT_COST_LIMIT:g})")
     p.add_argument("--out", required=True, type=Path, help="run directory (checkpoint, progress.log, budget.json, ...)")
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
@@ -82,7 +54,7 @@ def add_subcommands(sub: Any) -> None:
                    help="how the posterior becomes a cost (default: conservative for parametric constraints - the "
                         "boundary at the edge of the identified region nearest the safe demonstrations -, else "
                         "indicator: 1 per step in a selected constraint)")
-    p.add_argument("--quantile", type=unit, default=0.5, help="penalty mode: quantile of w_p | c=1 (default 0.5)")
+    p.add_argument("--quantile", type=open_unit, default=0.5, help="penalty mode: quantile of w_p | c=1 (default 0.5)")
     p.add_argument("--constraints", help="comma-separated constraints to cost (default: the selected set, or every "
                                          "feature with P(c=1) > 0 for probability/sample)")
     p.add_argument("--cost", choices=COSTS, default="inferred",

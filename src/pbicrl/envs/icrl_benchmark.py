@@ -230,10 +230,11 @@ def _speed(env: Any, x_before: float, x_after: float) -> float:
     return abs(x_after - x_before) / float(env.dt)
 
 
-class BlockedHalfCheetahEnv(_ICRLMixin, HalfCheetahEnv):
-    """Blocked Half-Cheetah (``HCWithPos-v0``): 18-D observation, 1000 steps, cost iff :math:`x < -3`."""
+class _RunMixin(_ICRLMixin):
+    r"""Half-Cheetah and Swimmer: the x position in the observation; reward speed :math:`|\Delta x|/\Delta t` minus
+    ``_ctrl_weight`` :math:`\lVert a \rVert^2`, features (speed, :math:`\lVert a \rVert^2`)."""
 
-    _task = ICRL_TASKS["halfcheetah"]
+    _ctrl_weight: float
 
     def __init__(self, *, time_limit_terminal: bool = False, **kwargs: Any) -> None:
         kwargs.setdefault("exclude_current_positions_from_observation", False)
@@ -242,8 +243,15 @@ class BlockedHalfCheetahEnv(_ICRLMixin, HalfCheetahEnv):
     def _icrl_reward(self, x_before: float, x_after: float, action: NDArray, obs: NDArray) -> tuple[float, dict]:
         run = _speed(self, x_before, x_after)
         sq = float(np.sum(action**2))
-        ctrl = 0.1 * sq
+        ctrl = self._ctrl_weight * sq
         return run - ctrl, {"reward_run": run, "reward_ctrl": -ctrl, "features": np.array([run, sq])}
+
+
+class BlockedHalfCheetahEnv(_RunMixin, HalfCheetahEnv):
+    """Blocked Half-Cheetah (``HCWithPos-v0``): 18-D observation, 1000 steps, cost iff :math:`x < -3`."""
+
+    _task = ICRL_TASKS["halfcheetah"]
+    _ctrl_weight = 0.1
 
 
 class BlockedAntEnv(_ICRLMixin, AntEnv):
@@ -310,17 +318,8 @@ class BlockedWalkerEnv(_ICRLMixin, Walker2dEnv):
         return not (0.8 < z < 2.0 and -1.0 < angle < 1.0)
 
 
-class BlockedSwimmerEnv(_ICRLMixin, SwimmerEnv):
+class BlockedSwimmerEnv(_RunMixin, SwimmerEnv):
     """Blocked Swimmer (``SwimmerWithPos-v0``): 10-D observation, 500 steps, cost iff :math:`x > 0.5`."""
 
     _task = ICRL_TASKS["swimmer"]
-
-    def __init__(self, *, time_limit_terminal: bool = False, **kwargs: Any) -> None:
-        kwargs.setdefault("exclude_current_positions_from_observation", False)
-        super().__init__(time_limit_terminal=time_limit_terminal, **kwargs)
-
-    def _icrl_reward(self, x_before: float, x_after: float, action: NDArray, obs: NDArray) -> tuple[float, dict]:
-        run = _speed(self, x_before, x_after)
-        sq = float(np.sum(action**2))
-        ctrl = 1e-4 * sq
-        return run - ctrl, {"reward_run": run, "reward_ctrl": -ctrl, "features": np.array([run, sq])}
+    _ctrl_weight = 1e-4

@@ -231,16 +231,9 @@ def _append_lines(path: Path, rows: list[dict[str, Any]]) -> int:
 
 def load_run_checkpoint(path: Path) -> dict[str, Any]:
     """Read a run's checkpoint with ``torch.load(weights_only=True)``; errors name the file."""
-    import pickle
+    from pbicrl.baselines.session import load_safely
 
-    import torch
-
-    try:
-        obj = torch.load(path, weights_only=True, map_location="cpu")
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ValueError(f"out: {path} cannot be loaded safely ({type(exc).__name__}: {first[:200]}); delete it to "
-                         "start the run afresh") from None
+    obj = load_safely(path, "out", "delete it to start the run afresh")
     if not isinstance(obj, dict) or "agent" not in obj:
         raise ValueError(f"out: {path} is not a checkpoint of pbicrl.experiments.icrl_benchmark (no 'agent')")
     return obj

@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
+from pbicrl.baselines.session import SessionClock, StopSignals, library_versions, load_safely, progress_logger
 from pbicrl._moved import moved_to_cli
 
 __all__ = [
@@ -210,16 +210,7 @@ class SafePolicy:
 
 
 def _torch_load(path: Path, what: str) -> dict[str, Any]:
-    import pickle
-
-    import torch
-
-    try:
-        obj = torch.load(path, weights_only=True, map_location="cpu")
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ValueError(f"{what}: {path} cannot be loaded safely ({type(exc).__name__}: {first[:160]}); it is not a "
-                         "file of pbicrl train-safe, or it is damaged") from None
+    obj = load_safely(path, what, "it is not a file of pbicrl train-safe, or it is damaged")
     if not isinstance(obj, dict) or obj.get("kind") != _KIND:
         raise ValueError(f"{what}: {path} is not a pbicrl train-safe file")
     return obj
@@ -530,7 +521,8 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
             "sessions": sess, "ppo": cfg.to_dict(), "run": run_info, "versions": library_versions()})
 
     stop = StopSignals().install()  # SIGTERM/SIGINT: checkpoint, then stop
-    marks = {"log": time.time(), "ckpt": agent.num_steps}
+    clock = SessionClock(save, stop, agent.num_steps, every, max_session_steps)
+    last_log = {"t": time.time()}
 
     def on_update(p: Any, info: dict) -> bool:
         rec = {k: (float(info[k]) if info[k] is not None else None) for k in
@@ -540,19 +532,14 @@ def train_safe(out_dir: str | os.PathLike[str], env: str, steps: int, cost_limit
             p.set_cost_fn(real_cost)
             log(f"warm-up over at {p.num_steps} steps: the cost is on")
         now = time.time()
-        if now - marks["log"] >= log_every_s or p.num_steps >= steps:
+        if now - last_log["t"] >= log_every_s or p.num_steps >= steps:
             rate = (p.num_steps - start_steps) / max(now - t_session, 1e-9)
             eta = max(0, steps - p.num_steps) / max(rate, 1e-9)
             log(f"steps {p.num_steps}/{steps} return {info['ep_return']:.1f} episode cost {info['ep_cost']:.2f} "
                 f"(limit {cost_limit:g}) lambda {info['lam_next']:.3f} len {info['ep_len']:.0f} "
                 f"({rate:.0f} steps/s, ~{eta / 60:.1f} min left)")
-            marks["log"] = now
-        if p.num_steps - marks["ckpt"] >= every:
-            save("running")
-            marks["ckpt"] = p.num_steps
-        if max_session_steps is not None and p.num_steps - start_steps >= int(max_session_steps):
-            stop.request()
-        return not stop.requested
+            last_log["t"] = now
+        return clock.tick(p.num_steps)
 
     try:
         torch.set_num_threads(int(cfg.torch_threads))

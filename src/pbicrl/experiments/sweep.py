@@ -38,13 +38,12 @@ import math
 import os
 import sys
 import time
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pbicrl._atomic import write_json
+from pbicrl._atomic import read_toml, write_json
 from pbicrl._moved import moved_to_cli
 from pbicrl.experiments.tasks import (
     RESULT_FILE,
@@ -495,12 +494,7 @@ def expand_grid(base: Mapping[str, Any], grid: Mapping[str, Sequence[Any]] | Non
 def load_sweep(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | None = None) -> SweepSpec:
     """Read and expand a sweep file (see the module docstring); errors name the key."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"sweep config: {path}: no such file")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise TaskError(f"sweep config: {path} is not valid TOML ({exc})") from None
+    raw = read_toml(path, "sweep config", error=TaskError)
     unknown = set(raw) - {"sweep", "base", "grid", "runs"}
     if unknown:
         raise TaskError(f"sweep config: unknown table(s) {', '.join(sorted(unknown))}; expected [sweep], [base], [grid], [[runs]]")

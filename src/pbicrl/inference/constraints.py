@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal, Sequence
+from typing import Any, ClassVar, Literal, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -65,8 +65,10 @@ class Constraint:
     bounds: tuple[tuple[float, float], ...] | None = None
 
     family: str = field(default="", init=False)
+    _family: ClassVar[str] = ""  # each family's class sets it; ``family`` is set from it on construction
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "family", self._family)
         label = self.name or self.family
         try:
             dims = (self.dims,) if isinstance(self.dims, (int, np.integer)) else tuple(self.dims)
@@ -126,9 +128,9 @@ class AxisHalfspace(Constraint):
     """:math:`s_k \\ge \\vartheta` (``direction=">="``) or :math:`s_k \\le \\vartheta` - e.g. a wall at x = 8."""
 
     direction: Literal[">=", "<="] = ">="
+    _family: ClassVar[str] = "axis_halfspace"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "family", "axis_halfspace")
         super().__post_init__()
         if len(self.dims) != 1:
             raise ConstraintError(f"constraint {self.name!r}: an axis halfspace takes one state dimension, got {list(self.dims)}")
@@ -159,8 +161,9 @@ class AxisHalfspace(Constraint):
 class Halfspace(Constraint):
     """:math:`n^\\top s \\ge b` with unit normal :math:`n` from spherical angles (``angle`` in 2-D)."""
 
+    _family: ClassVar[str] = "halfspace"
+
     def __post_init__(self) -> None:
-        object.__setattr__(self, "family", "halfspace")
         super().__post_init__()
         if len(self.dims) < 2:
             raise ConstraintError(f"constraint {self.name!r}: a general halfspace needs >= 2 dims; use axis_halfspace for one")
@@ -202,9 +205,7 @@ class Halfspace(Constraint):
 class Box(Constraint):
     """Axis-aligned box :math:`l \\le s \\le u` (closed) - e.g. the Fetch-Reach regions."""
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "family", "box")
-        super().__post_init__()
+    _family: ClassVar[str] = "box"
 
     @property
     def n_params(self) -> int:
@@ -229,9 +230,7 @@ class Box(Constraint):
 class Ball(Constraint):
     """Open ball :math:`\\lVert s - o \\rVert < \\rho` - e.g. the point-mass discs."""
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "family", "ball")
-        super().__post_init__()
+    _family: ClassVar[str] = "ball"
 
     @property
     def n_params(self) -> int:

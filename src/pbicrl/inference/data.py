@@ -679,19 +679,11 @@ class Dataset:
         rel = None if self.gap_relation is None else _as_gap_relation(self.gap_relation, len(defined))
         env = None if self.env_id is None else _as_env_id(self.env_id)
 
-        set_(self, "features", feats)
-        set_(self, "offsets", offsets)
-        set_(self, "group", group)
-        set_(self, "states", states)
-        set_(self, "actions", actions)
-        set_(self, "feature_names", names)
-        set_(self, "nominal_weights", wn)
-        set_(self, "group_names", gnames)
-        set_(self, "gap_relation", rel)
-        set_(self, "skipped", skipped)
-        set_(self, "env_id", env)
-        set_(self, "allow_unlabelled", allow)
-        set_(self, "_defined", defined)
+        checked = dict(features=feats, offsets=offsets, group=group, states=states, actions=actions,
+                       feature_names=names, nominal_weights=wn, group_names=gnames, gap_relation=rel,
+                       skipped=skipped, env_id=env, allow_unlabelled=allow, _defined=defined)
+        for key, value in checked.items():  # the checked, normalised values replace what was given
+            set_(self, key, value)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -728,16 +720,7 @@ class Dataset:
             raise DatasetError("features: no trajectories given")
         blocks = []
         for i, f in enumerate(features):
-            try:
-                a = _real_float64(np.asarray(f), f"features: trajectory {i} has")
-            except DatasetError:
-                raise
-            except (TypeError, ValueError) as exc:
-                raise DatasetError(f"features: trajectory {i} is not numeric ({exc})") from None
-            if a.ndim == 1:
-                a = a[:, None]
-            if a.ndim != 2:
-                raise DatasetError(f"features: trajectory {i} must be 2-D (T_i, d), got shape {a.shape}")
+            a = _as_float_2d(f"features: trajectory {i}", f)  # (T_i, d)
             if a.shape[0] == 0:
                 raise DatasetError(f"features: trajectory {i} is empty")
             if blocks and a.shape[1] != blocks[0].shape[1]:

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["DrawsView", "SELECTION_THRESHOLD", "ESTIMATORS", "LEVEL", "INDICATOR_MEANINGS", "indicator_meaning",
-           "INDICATOR_LABELS", "split_rhat"]
+           "INDICATOR_LABELS", "split_rhat", "parameter_draws"]
 
 SELECTION_THRESHOLD = 0.5
 """:math:`P(c_j = 1) >` this selects feature :math:`j` (median-probability model, Barbieri & Berger 2004)."""
@@ -63,6 +63,22 @@ def split_rhat(x: NDArray[np.float64]) -> float:
         return float("nan") if B == 0 else float("inf")
     var = (n - 1) / n * W + B / n
     return float(np.sqrt(var / W)) if m > 1 else float("nan")
+
+
+def parameter_draws(post: Any) -> tuple[NDArray[np.float64] | None, list[str]]:
+    r"""The :math:`\vartheta` draws of a holder of draws as (chains, draws, P) floats, and their names.
+
+    ``(None, [])`` without parametric constraints; a 2-D ``parameters`` is one parameter; missing
+    ``parameter_names`` are ``theta0``, ``theta1``, ...
+    """
+    params = getattr(post, "parameters", None)
+    if params is None or not np.size(params):
+        return None, []
+    params = np.asarray(params, dtype=np.float64)
+    if params.ndim == 2:
+        params = params[:, :, None]
+    names = getattr(post, "parameter_names", None) or [f"theta{k}" for k in range(params.shape[2])]
+    return params, [str(n) for n in names]
 
 
 class DrawsView:

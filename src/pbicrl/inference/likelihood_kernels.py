@@ -262,6 +262,16 @@ def _block_wide(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: float
     return -(pos + (ser + (log_total + math.log(prod))))
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _extend_range(a: np.ndarray, idx: np.ndarray, lo: float, hi: float) -> tuple[float, float]:
+    """``(lo, hi)`` widened to hold ``a[idx]``."""
+    for r in range(idx.size):
+        v = a[idx[r]]
+        lo = min(lo, v)
+        hi = max(hi, v)
+    return lo, hi
+
+
 @njit(cache=True, error_model="numpy")
 def block_loglik(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: float,
                  b: np.ndarray, Q: np.ndarray, Qinv: np.ndarray, E: np.ndarray, Einv: np.ndarray) -> float:
@@ -273,16 +283,8 @@ def block_loglik(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, margin: floa
     nc = cols.size
     if nr == 0 or nc == 0:
         return 0.0
-    lo = np.inf
-    hi = -np.inf
-    for j in range(nc):
-        v = a[cols[j]]
-        lo = min(lo, v)
-        hi = max(hi, v)
-    for r in range(nr):
-        v = a[rows[r]]
-        lo = min(lo, v)
-        hi = max(hi, v)
+    lo, hi = _extend_range(a, cols, np.inf, -np.inf)
+    lo, hi = _extend_range(a, rows, lo, hi)
     if not (hi - lo <= _SPREAD and abs(margin) <= _MMAX):
         if hi - lo != hi - lo:  # NaN in the returns
             return np.nan
@@ -626,6 +628,13 @@ def _comp_from_h(s: float, h: float, h1: float, h2: float) -> tuple[float, float
     return s - es + math.log(-math.expm1(h)), d1, d2
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _direct_slopes(s: float, h1: float, h2: float) -> tuple[float, float]:
+    """``(f', f'')`` of the direct form :math:`f = s - e^s + h` at ``s`` from :math:`h', h''` there."""
+    es = math.exp(s)
+    return 1.0 - es + h1, -es + h2
+
+
 @njit(cache=True, error_model="numpy")
 def _newton_step(s: float, d1: float, d2: float, lo: float, hi: float) -> tuple[float, float, float, bool]:
     """One safeguarded Newton step for the mode: ``(next s, lo, hi, converged)``.
@@ -675,9 +684,7 @@ def _pl_mode(comp: bool, x: np.ndarray) -> tuple[float, float, float]:
             f, d1, d2 = _pl_comp_derivs(s, x)
         else:
             h1, h2 = _pl_slopes(s, x)
-            es = math.exp(s)
-            d1 = 1.0 - es + h1
-            d2 = -es + h2
+            d1, d2 = _direct_slopes(s, h1, h2)
         sn, lo, hi, done = _newton_step(s, d1, d2, lo, hi)
         if done:
             break
@@ -935,12 +942,7 @@ def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarra
     :math:`M_0`, :math:`M_0 c_b + M_1` and (as a logarithm) :math:`e^{c_b} \\sum_q M_{bq}`: the closed form of the
     bins below ``_G_TINY`` at any node in O(1) (:func:`_gb_h`)."""
     n = items.size
-    lo = np.inf
-    hi = -np.inf
-    for r in range(n):
-        v = a[items[r]]
-        lo = min(lo, v)
-        hi = max(hi, v)
+    lo, hi = _extend_range(a, items, np.inf, -np.inf)
     if not (hi - lo < np.inf):
         return np.zeros(0), np.zeros((0, _GB_ORDER)), 0
     nb = int((hi - lo) / _GB_WIDTH) + 1
@@ -1073,9 +1075,7 @@ def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) 
     d2 = -1.0
     for _ in range(200):
         h, h1, h2 = _gb_h(s, shift, cen, mom, nb, T, f)
-        es = math.exp(s)
-        d1 = 1.0 - es + h1
-        d2 = -es + h2
+        d1, d2 = _direct_slopes(s, h1, h2)
         sn, lo, hi, done = _newton_step(s, d1, d2, lo, hi)
         if done:
             break

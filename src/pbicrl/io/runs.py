@@ -185,7 +185,8 @@ def _array(z: Any, key: str, path: Path, ndim: int) -> NDArray:
     return a
 
 
-def _check_summary(path: Path) -> None:
+def _read_summary(path: Path) -> dict[str, Any]:
+    """``summary.json`` of a run, checked: a JSON object of a sane size whose known keys have the right types."""
     try:
         size = path.stat().st_size
     except OSError as exc:
@@ -215,6 +216,7 @@ def _check_summary(path: Path) -> None:
     data = (summary.get("extra") or {}).get("data")
     if data is not None and (not isinstance(data, dict) or not isinstance(data.get("path", ""), (str, type(None)))):
         raise RunError(f"{path}: 'extra.data' should be an object with a string 'path'")
+    return summary
 
 
 def _json_type(t: type) -> str:
@@ -243,7 +245,7 @@ def check_run_dir(run_dir: str | os.PathLike[str]) -> None:
     for f in (sj, cz):
         if not f.exists():
             raise FileNotFoundError(f"run: {f}: missing (a run directory holds summary.json and chains.npz)")
-    _check_summary(sj)
+    _read_summary(sj)
     try:
         inspect_npz(cz, what="chains file")
     except DatasetError as exc:
@@ -272,29 +274,11 @@ def read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
 
 
 def _read_run(run_dir: str | os.PathLike[str]) -> RunRecord:
-    """Read ``summary.json`` and ``chains.npz`` from a run directory.
-
-    Raises
-    ------
-    FileNotFoundError
-        If the directory or one of the two files does not exist.
-    RunError
-        If a file is malformed, or ``summary.json`` has a ``schema_version`` newer than this pbicrl reads
-        (the message names the file).
-    """
+    """Read ``summary.json`` and ``chains.npz`` of a run directory that :func:`check_run_dir` passed (see
+    :func:`read_run`)."""
     run = Path(run_dir)
-    if not run.is_dir():
-        raise FileNotFoundError(f"run: {run}: no such directory (expected the --out directory of pbicrl infer)")
     sj, cz = run / "summary.json", run / "chains.npz"
-    for f in (sj, cz):
-        if not f.is_file():
-            raise FileNotFoundError(f"run: {f}: missing (a run directory holds summary.json and chains.npz)")
-    try:
-        summary = json.loads(sj.read_text())
-    except json.JSONDecodeError as exc:
-        raise RunError(f"{sj}: not valid JSON ({exc})") from None
-    if not isinstance(summary, dict):
-        raise RunError(f"{sj}: expected a JSON object")
+    summary = _read_summary(sj)
     version = summary.get("schema_version", 1)
     if isinstance(version, bool) or not isinstance(version, int) or version < 1:
         raise RunError(f"{sj}: 'schema_version' should be a positive integer, got {version!r}")

@@ -15,6 +15,7 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
     raise ImportError('pbicrl.baselines.icl needs PyTorch: pip install "pbicrl[rl]"') from exc
 
 from pbicrl._atomic import atomic_path, write_json
+from pbicrl.baselines.session import load_safely
 
 __all__ = ["CHECKPOINT", "write_json_file", "load_checkpoint", "save_checkpoint"]
 
@@ -60,23 +61,10 @@ def _numpy_safe_globals() -> list[Any]:
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
-    """Read a checkpoint of :func:`run_icl` safely (``weights_only=True``); errors name the file."""
-    import pickle
-
-    ctx = getattr(torch.serialization, "safe_globals", None)
-    try:
-        if ctx is not None:
-            with ctx(_numpy_safe_globals()):
-                obj = torch.load(path, weights_only=True, map_location="cpu")
-        else:  # older torch: tensors and plain values only
-            obj = torch.load(path, weights_only=True, map_location="cpu")
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as exc:
-        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()] or [type(exc).__name__]
-        # torch's own text suggests weights_only=False, exactly what must not be done with a file of unknown origin
-        first = next((ln for ln in lines if "global" in ln.lower() and "weights_only" not in ln), lines[0])
-        raise ValueError(f"out_dir: {path} cannot be loaded safely ({type(exc).__name__}: {first[:200]}); it is not "
-                         "a checkpoint of this pbicrl version, or it is damaged. Delete it to start the run "
-                         "afresh") from None
+    """Read a checkpoint of :func:`run_icl` safely (:func:`pbicrl.baselines.session.load_safely`); errors name the
+    file."""
+    obj = load_safely(path, "out_dir", "it is not a checkpoint of this pbicrl version, or it is damaged. Delete it "
+                                       "to start the run afresh", safe_globals=_numpy_safe_globals())
     if not isinstance(obj, dict) or "state" not in obj:
         raise ValueError(f"out_dir: {path} is not an ICL checkpoint (no 'state'); delete it to start afresh")
     return obj

@@ -26,7 +26,7 @@ from pbicrl.baselines.icl.losses import accrual, constraint_location, constraint
 from pbicrl.baselines.icl.network import ConstraintNet
 from pbicrl.baselines.icl.presets import ICLConfig, icl_preset
 from pbicrl.baselines.ppo_lagrangian import PPOLagrangian
-from pbicrl.baselines.session import StopSignals, library_versions, progress_logger
+from pbicrl.baselines.session import SessionClock, StopSignals, library_versions, progress_logger
 
 __all__ = ["run_icl"]
 
@@ -178,21 +178,16 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
 
     stop = StopSignals().install()  # SIGTERM/SIGINT: checkpoint, then stop
 
-    last_ckpt = {"steps": ppo.num_steps, "log_t": time.time()}
-    session_start_steps = ppo.num_steps
+    clock = SessionClock(save, stop, ppo.num_steps, cfg.checkpoint_every, max_session_steps)
+    last_log = {"t": time.time()}
 
     def on_update(p: PPOLagrangian, info: dict) -> bool:
-        if time.time() - last_ckpt["log_t"] > 30 or p.num_steps >= cfg.round_target(state["round"]):
+        if time.time() - last_log["t"] > 30 or p.num_steps >= cfg.round_target(state["round"]):
             log(f"round {state['round'] + 1} steps {p.num_steps} return {info['ep_return']:.1f} len {info['ep_len']:.0f} "
                 f"max_coord {info['ep_max_coord']:.2f} Jc {info['ep_cost']:.3f} lambda {info['lam_next']:.3f} "
                 f"kl {info['approx_kl']:.4f} std {info['std']:.3f} ({cfg.ppo.n_envs * cfg.ppo.n_steps / info['seconds']:.0f} steps/s)")
-            last_ckpt["log_t"] = time.time()
-        if p.num_steps - last_ckpt["steps"] >= cfg.checkpoint_every:
-            save("running")
-            last_ckpt["steps"] = p.num_steps
-        if max_session_steps is not None and p.num_steps - session_start_steps >= int(max_session_steps):
-            stop.request()
-        return not stop.requested
+            last_log["t"] = time.time()
+        return clock.tick(p.num_steps)
 
     try:
         while state["round"] < cfg.rounds:

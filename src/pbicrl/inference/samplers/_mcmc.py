@@ -8,8 +8,8 @@ arrays it mutates in place; :mod:`pbicrl.inference.samplers.kernels` copies the 
 The loop is built from small functions that Numba inlines into it (no call, no reference counting of the
 bundles' arrays): :func:`choose` picks an iteration's move, :func:`flip`, :func:`weight`, :func:`parameter` and
 :func:`joint` propose it, :func:`mh_accept` is the one Metropolis-Hastings test they share, :func:`adapt` tunes
-the proposals during warm-up. They read the bundles' fields by name and pass the log-likelihood and log-prior on
-as two numbers.
+the proposals during warm-up. The moves take one :class:`~pbicrl.inference.samplers.bundles.Context` (the call's
+bundles and settings), read its fields by name and pass the log-likelihood and log-prior on as two numbers.
 
 Features ``0..d_known-1`` are known features; features ``d_known..`` are parametric constraints whose
 (scaled) mean-feature rows of ``Position.features_T`` are recomputed from :math:`\\vartheta` by
@@ -35,8 +35,8 @@ from pbicrl.inference.samplers import _parametric, _priorkern, bundles
 from pbicrl.inference.samplers._cache import flush_stale
 from pbicrl.inference.samplers._parametric import param_column
 from pbicrl.inference.samplers._priorkern import logprior_w, lognormal
-from pbicrl.inference.samplers.bundles import (Adaptation, ConstraintArrays, Draws, MapTracker, Model, Moves,
-                                               Position, Randoms, Schedule, Scratch)
+from pbicrl.inference.samplers.bundles import (Adaptation, ConstraintArrays, Context, Draws, MapTracker, Model,
+                                               Moves, Position, Randoms, Schedule, Scratch)
 
 __all__ = ["advance", "choose", "flip", "weight", "parameter", "joint", "adapt", "mh_accept"]
 
@@ -119,32 +119,34 @@ def _column(m: int, theta: np.ndarray, beta: float, cons: ConstraintArrays, out:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def mh_accept(lik: LikelihoodArrays, power: float, screen: bool, scratch: Scratch, counts: np.ndarray, ll: float,
-              u: float, t1: float, t2: float, t3: float, memo: int, bound: float) -> tuple[bool, float]:
-    r"""The Metropolis-Hastings test of the proposal whose returns are ``scratch.a_new``: accept when
-    :math:`\log u < \gamma\mathcal{L}' - \gamma\mathcal{L} + t_1 + t_2 + t_3`; returns (accepted, :math:`\gamma\mathcal{L}'`).
+def mh_accept(ctx: Context, t: int, ll: float, t1: float, t2: float, t3: float, memo: int,
+              bound: float) -> tuple[bool, float]:
+    r"""The Metropolis-Hastings test of the proposal of iteration row ``t``, whose returns are
+    ``ctx.scratch.a_new``: accept when :math:`\log u < \gamma\mathcal{L}' - \gamma\mathcal{L} + t_1 + t_2 + t_3`
+    (:math:`u` = ``ctx.rnd.u_acc[t]``); returns (accepted, :math:`\gamma\mathcal{L}'`).
 
     The terms are added in this order on purpose (floating-point addition is not associative, and the chain
     must not depend on how a move groups its prior and proposal terms); a term subtracted by the move is
     passed negated, which is the same operation. ``memo >= 0``: the likelihood of the proposal is
     ``scratch.memo_ll[memo]`` where ``scratch.memo_valid[memo]``, and is stored there once evaluated.
 
-    With ``screen`` (explicit pairs only), a proposal is rejected from a cheap upper bound on its
+    With ``ctx.screen`` (explicit pairs only), a proposal is rejected from a cheap upper bound on its
     log-likelihood (``bound``; NaN: compute it) when even the bound fails the test. Floating-point addition is
     monotone, so the exact log-ratio, computed by the same expression, would fail too: same decisions, same
     chain, fewer exact evaluations (``counts[C_EVALS]``).
     """
-    lu = math.log(u)
+    scratch, power = ctx.scratch, ctx.model.power
+    lu = math.log(ctx.rnd.u_acc[t])
     if memo >= 0 and scratch.memo_valid[memo]:
         ll_new = scratch.memo_ll[memo]
     else:
-        if screen:
+        if ctx.screen:
             if math.isnan(bound):
-                bound = _bound(power, scratch.a_new, lik)
+                bound = _bound(power, scratch.a_new, ctx.lik)
             if bound - ll + t1 + t2 + t3 < lu:
                 return False, -np.inf
-        ll_new = power * loglik(scratch.a_new, lik)
-        counts[C_EVALS] += 1
+        ll_new = power * loglik(scratch.a_new, ctx.lik)
+        ctx.counts[C_EVALS] += 1
         if memo >= 0:
             scratch.memo_valid[memo] = True
             scratch.memo_ll[memo] = ll_new
@@ -198,74 +200,93 @@ def choose(t: int, it: int, mode: int, joint_on: bool, c: np.ndarray, moves: Mov
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _flip_latent(t: int, j: int, mode: int, screen: bool, pos: Position, lik: LikelihoodArrays, model: Model,
-                 rnd: Randoms, counts: np.ndarray, scratch: Scratch, bmemo: np.ndarray, ll: float) -> tuple[bool, float]:
+def _param_range(j: int, ctx: Context) -> tuple[int, int]:
+    """The parameters ``p0 .. p1-1`` of parametric constraint ``j`` (a feature ``>= moves.d_known``)."""
+    m = j - ctx.moves.d_known
+    return ctx.cons.poff[m], ctx.cons.poff[m + 1]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _log_q_weight(w: float, j: int, ctx: Context) -> float:
+    """Log density at ``w`` of feature ``j``'s flip-and-draw proposal :math:`q_j` (see :class:`Moves`)."""
+    ad, moves = ctx.adaptation, ctx.moves
+    if moves.log_sign[j] != 0:
+        return _log_q_birth(abs(w), ad.q_mean[j], ad.q_scale[j], moves.birth_bound[j]) if w != 0.0 else -np.inf
+    return lognormal(w, ad.q_mean[j], ad.q_scale[j])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _add_log_q_theta(lq: float, theta: np.ndarray, p0: int, p1: int, ad: Adaptation) -> float:
+    r"""``lq`` plus the log density of the parameter proposal :math:`q_\vartheta` at ``theta[p0:p1]``, term by term."""
+    for p in range(p0, p1):
+        lq += lognormal(theta[p], ad.q_theta_mean[p], ad.q_theta_scale[p])
+    return lq
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _flip_latent(t: int, j: int, ctx: Context, bmemo: np.ndarray, ll: float) -> tuple[bool, float]:
     """Algorithm 1's flip: :math:`c_j` flips, the latent weight (and parameters) stay; likelihood ratio only.
 
     ``bmemo[j]``: the screening bound of flipping ``j`` in the current state (NaN: not computed yet); a flip
     proposed again before the state changes reuses it (same value, same decision)."""
+    pos, scratch = ctx.pos, ctx.scratch
     a, FbT, c, w = pos.scaled_returns, pos.features_T, pos.indicators, pos.penalty_weights
     delta = w[j] if c[j] == 0 else -w[j]
     if not scratch.memo_valid[j]:
         for i in range(a.size):
             scratch.a_new[i] = a[i] + delta * FbT[j, i]
-        if screen and math.isnan(bmemo[j]):
-            bmemo[j] = _bound(model.power, scratch.a_new, lik)
-    ok, ll_new = mh_accept(lik, model.power, screen, scratch, counts, ll, rnd.u_acc[t], 0.0, 0.0, 0.0, j, bmemo[j])
+        if ctx.screen and math.isnan(bmemo[j]):
+            bmemo[j] = _bound(ctx.model.power, scratch.a_new, ctx.lik)
+    ok, ll_new = mh_accept(ctx, t, ll, 0.0, 0.0, 0.0, j, bmemo[j])
     if ok:
         for i in range(a.size):
             a[i] += delta * FbT[j, i]
         c[j] = 1 - c[j]
-        if mode == MODE_AUTHORS and c[j] == 0:
+        if ctx.mode == MODE_AUTHORS and c[j] == 0:
             w[j] = 0.0  # the authors' code: a feature switched off loses its weight
         ll = ll_new
     return ok, ll
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _birth(t: int, j: int, screen: bool, pos: Position, lik: LikelihoodArrays, cons: ConstraintArrays, moves: Moves,
-           model: Model, rnd: Randoms, adaptation: Adaptation, counts: np.ndarray, scratch: Scratch, ll: float,
-           lp: float) -> tuple[bool, float, float]:
+def _birth(t: int, j: int, ctx: Context, ll: float, lp: float) -> tuple[bool, float, float]:
     r"""Reversible jump on: draw :math:`w_j \sim q_j` (and :math:`\vartheta_j \sim q_\vartheta` for a parametric
     constraint)."""
+    pos, ad, moves, model, rnd, scratch = ctx.pos, ctx.adaptation, ctx.moves, ctx.model, ctx.rnd, ctx.scratch
     a, FbT, theta = pos.scaled_returns, pos.features_T, pos.parameters
-    q_mu, q_s, qb, lsg = adaptation.q_mean, adaptation.q_scale, moves.birth_bound, moves.log_sign
     z = rnd.z[t]
     theta_new, col_new = scratch.theta_new, scratch.col_new
-    if lsg[j] != 0:
+    if moves.log_sign[j] != 0:
         # mixture on the magnitude: u_mv / p_flip is a fresh uniform that picks the component
         if rnd.u_mv[t] < 0.5 * moves.p_flip:
-            w_abs = math.exp(q_mu[j] + q_s[j] * z)
+            w_abs = math.exp(ad.q_mean[j] + ad.q_scale[j] * z)
         else:
-            w_abs = qb[j] * 0.5 * math.erfc(-z / math.sqrt(2.0))  # Phi(z) b: uniform on (0, b)
-        w_new = lsg[j] * w_abs
-        lq = _log_q_birth(w_abs, q_mu[j], q_s[j], qb[j]) if w_abs > 0.0 else -np.inf
+            w_abs = moves.birth_bound[j] * 0.5 * math.erfc(-z / math.sqrt(2.0))  # Phi(z) b: uniform on (0, b)
+        w_new = moves.log_sign[j] * w_abs
     else:
-        w_new = q_mu[j] + q_s[j] * z
-        lq = lognormal(w_new, q_mu[j], q_s[j])
+        w_new = ad.q_mean[j] + ad.q_scale[j] * z
+    lq = _log_q_weight(w_new, j, ctx)
     lpw = logprior_w(model.prior_kind[j], model.prior_params, j, w_new)
     parametric = j >= moves.d_known
     p0 = p1 = 0
     if parametric:
-        p0 = cons.poff[j - moves.d_known]
-        p1 = cons.poff[j - moves.d_known + 1]
+        p0, p1 = _param_range(j, ctx)
         for p in range(theta.size):
             theta_new[p] = theta[p]
         for p in range(p0, p1):
-            theta_new[p] = adaptation.q_theta_mean[p] + adaptation.q_theta_scale[p] * rnd.zt[t, p - p0]
-            lq += lognormal(theta_new[p], adaptation.q_theta_mean[p], adaptation.q_theta_scale[p])
-        lpw += _logprior_theta(theta_new, p0, p1, cons.lo, cons.hi, True)
+            theta_new[p] = ad.q_theta_mean[p] + ad.q_theta_scale[p] * rnd.zt[t, p - p0]
+        lq = _add_log_q_theta(lq, theta_new, p0, p1, ad)
+        lpw += _logprior_theta(theta_new, p0, p1, ctx.cons.lo, ctx.cons.hi, True)
     if not lpw > -np.inf:
         return False, ll, lp
     if parametric:
-        _column(j - moves.d_known, theta_new, model.beta, cons, col_new, moves.naive)
+        _column(j - moves.d_known, theta_new, model.beta, ctx.cons, col_new, moves.naive)
     else:
         for i in range(a.size):
             col_new[i] = FbT[j, i]
     for i in range(a.size):
         scratch.a_new[i] = a[i] + w_new * col_new[i]
-    ok, ll_new = mh_accept(lik, model.power, screen, scratch, counts, ll, rnd.u_acc[t], model.log_odds, lpw, -lq,
-                           -1, np.nan)
+    ok, ll_new = mh_accept(ctx, t, ll, model.log_odds, lpw, -lq, -1, np.nan)
     if ok:
         scratch.memo_ll[j] = ll  # the off-state likelihood stays known
         for i in range(a.size):
@@ -283,28 +304,20 @@ def _birth(t: int, j: int, screen: bool, pos: Position, lik: LikelihoodArrays, c
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _death(t: int, j: int, screen: bool, pos: Position, lik: LikelihoodArrays, cons: ConstraintArrays, moves: Moves,
-           model: Model, rnd: Randoms, adaptation: Adaptation, counts: np.ndarray, scratch: Scratch, ll: float,
-           lp: float) -> tuple[bool, float, float]:
+def _death(t: int, j: int, ctx: Context, ll: float, lp: float) -> tuple[bool, float, float]:
     r"""Reversible jump off: drop :math:`w_j` (and :math:`\vartheta_j`); the reverse of :func:`_birth`."""
-    a, FbT, w, theta = pos.scaled_returns, pos.features_T, pos.penalty_weights, pos.parameters
-    q_mu, q_s = adaptation.q_mean, adaptation.q_scale
+    pos, model, scratch = ctx.pos, ctx.model, ctx.scratch
+    a, FbT, w = pos.scaled_returns, pos.features_T, pos.penalty_weights
     lpw = logprior_w(model.prior_kind[j], model.prior_params, j, w[j])
-    if moves.log_sign[j] != 0:
-        lq = _log_q_birth(abs(w[j]), q_mu[j], q_s[j], moves.birth_bound[j]) if w[j] != 0.0 else -np.inf
-    else:
-        lq = lognormal(w[j], q_mu[j], q_s[j])
-    if j >= moves.d_known:
-        p0 = cons.poff[j - moves.d_known]
-        p1 = cons.poff[j - moves.d_known + 1]
-        lpw += _logprior_theta(theta, p0, p1, cons.lo, cons.hi, True)
-        for p in range(p0, p1):
-            lq += lognormal(theta[p], adaptation.q_theta_mean[p], adaptation.q_theta_scale[p])
+    lq = _log_q_weight(w[j], j, ctx)
+    if j >= ctx.moves.d_known:
+        p0, p1 = _param_range(j, ctx)
+        lpw += _logprior_theta(pos.parameters, p0, p1, ctx.cons.lo, ctx.cons.hi, True)
+        lq = _add_log_q_theta(lq, pos.parameters, p0, p1, ctx.adaptation)
     if not scratch.memo_valid[j]:
         for i in range(a.size):
             scratch.a_new[i] = a[i] - w[j] * FbT[j, i]
-    ok, ll_new = mh_accept(lik, model.power, screen, scratch, counts, ll, rnd.u_acc[t], -model.log_odds, -lpw, lq,
-                           j, np.nan)
+    ok, ll_new = mh_accept(ctx, t, ll, -model.log_odds, -lpw, lq, j, np.nan)
     if ok:
         for i in range(a.size):
             a[i] -= w[j] * FbT[j, i]
@@ -316,41 +329,38 @@ def _death(t: int, j: int, screen: bool, pos: Position, lik: LikelihoodArrays, c
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def flip(t: int, j: int, mode: int, screen: bool, pos: Position, lik: LikelihoodArrays, cons: ConstraintArrays,
-         moves: Moves, model: Model, rnd: Randoms, adaptation: Adaptation, counts: np.ndarray, scratch: Scratch,
-         bmemo: np.ndarray, ll: float, lp: float) -> tuple[bool, float, float]:
+def flip(t: int, j: int, ctx: Context, bmemo: np.ndarray, ll: float, lp: float) -> tuple[bool, float, float]:
     """Flip :math:`c_j`: Algorithm 1's latent flip in ``paper``/``authors`` mode, else a reversible jump."""
-    counts[C_FLIP_PROP] += 1
-    if mode == MODE_PAPER or mode == MODE_AUTHORS:
-        ok, ll = _flip_latent(t, j, mode, screen, pos, lik, model, rnd, counts, scratch, bmemo, ll)
-    elif pos.indicators[j] == 0:
-        ok, ll, lp = _birth(t, j, screen, pos, lik, cons, moves, model, rnd, adaptation, counts, scratch, ll, lp)
+    ctx.counts[C_FLIP_PROP] += 1
+    if ctx.mode == MODE_PAPER or ctx.mode == MODE_AUTHORS:
+        ok, ll = _flip_latent(t, j, ctx, bmemo, ll)
+    elif ctx.pos.indicators[j] == 0:
+        ok, ll, lp = _birth(t, j, ctx, ll, lp)
     else:
-        ok, ll, lp = _death(t, j, screen, pos, lik, cons, moves, model, rnd, adaptation, counts, scratch, ll, lp)
+        ok, ll, lp = _death(t, j, ctx, ll, lp)
     if ok:
-        counts[C_FLIP_ACC] += 1
+        ctx.counts[C_FLIP_ACC] += 1
     return ok, ll, lp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def weight(t: int, j: int, mode: int, screen: bool, pos: Position, lik: LikelihoodArrays, moves: Moves,
-           model: Model, rnd: Randoms, adaptation: Adaptation, counts: np.ndarray, scratch: Scratch, ll: float,
-           lp: float) -> tuple[bool, float, float]:
+def weight(t: int, j: int, ctx: Context, ll: float, lp: float) -> tuple[bool, float, float]:
     r"""Random walk on one weight :math:`w_j` (on :math:`\eta = \log|w_j|` where ``moves.log_sign[j] != 0``)."""
+    pos, ad, model, scratch = ctx.pos, ctx.adaptation, ctx.model, ctx.scratch
     a, FbT, c, w = pos.scaled_returns, pos.features_T, pos.indicators, pos.penalty_weights
-    sigma, lsg = adaptation.sigma, moves.log_sign
-    counts[C_W_PROP] += 1
-    adaptation.stats[3, j] += 1
-    use_prior = mode == MODE_PBICRL or mode == MODE_BPL  # Algorithm 1 accepts on the likelihood ratio
+    sigma, lsg = ad.sigma, ctx.moves.log_sign
+    ctx.counts[C_W_PROP] += 1
+    ad.stats[3, j] += 1
+    use_prior = ctx.mode == MODE_PBICRL or ctx.mode == MODE_BPL  # Algorithm 1 accepts on the likelihood ratio
     ok = False
     jac = 0.0
     if lsg[j] != 0 and w[j] != 0.0:
         # random walk on eta = log|w|; the Jacobian |dw'/deta'| / |dw/deta| = |w'| / |w| enters the ratio
-        jac = sigma[j] * rnd.z[t]
+        jac = sigma[j] * ctx.rnd.z[t]
         w_new = lsg[j] * math.exp(math.log(abs(w[j])) + jac)
         step = w_new - w[j]
     else:
-        step = sigma[j] * rnd.z[t]
+        step = sigma[j] * ctx.rnd.z[t]
         w_new = w[j] + step
     lp_old = logprior_w(model.prior_kind[j], model.prior_params, j, w[j]) if use_prior else 0.0
     lp_new = logprior_w(model.prior_kind[j], model.prior_params, j, w_new) if use_prior else 0.0
@@ -358,13 +368,12 @@ def weight(t: int, j: int, mode: int, screen: bool, pos: Position, lik: Likeliho
         if c[j] == 0:
             # latent modes only: an inactive weight leaves the likelihood unchanged, always accepted; the
             # authors' code proposes from the effective weights, so an inactive one stays 0
-            w[j] = 0.0 if mode == MODE_AUTHORS else w_new
+            w[j] = 0.0 if ctx.mode == MODE_AUTHORS else w_new
             ok = True
         else:
             for i in range(a.size):
                 scratch.a_new[i] = a[i] + step * FbT[j, i]
-            ok, ll_new = mh_accept(lik, model.power, screen, scratch, counts, ll, rnd.u_acc[t], lp_new, -lp_old, jac,
-                                   -1, np.nan)
+            ok, ll_new = mh_accept(ctx, t, ll, lp_new, -lp_old, jac, -1, np.nan)
             if ok:
                 for i in range(a.size):
                     a[i] = scratch.a_new[i]
@@ -372,41 +381,37 @@ def weight(t: int, j: int, mode: int, screen: bool, pos: Position, lik: Likeliho
                 ll = ll_new
                 lp += lp_new - lp_old
     if ok:
-        counts[C_W_ACC] += 1
-        adaptation.stats[4, j] += 1
+        ctx.counts[C_W_ACC] += 1
+        ad.stats[4, j] += 1
     return ok, ll, lp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def parameter(t: int, j: int, mode: int, screen: bool, pos: Position, lik: LikelihoodArrays, cons: ConstraintArrays,
-              moves: Moves, model: Model, rnd: Randoms, adaptation: Adaptation, counts: np.ndarray, scratch: Scratch,
-              ll: float, lp: float) -> tuple[bool, float, float]:
+def parameter(t: int, j: int, ctx: Context, ll: float, lp: float) -> tuple[bool, float, float]:
     r"""Random walk on the parameters :math:`\vartheta` of parametric constraint ``j``."""
+    pos, ad, cons, scratch = ctx.pos, ctx.adaptation, ctx.cons, ctx.scratch
     a, FbT, theta = pos.scaled_returns, pos.features_T, pos.parameters
-    theta_new, col_new, sigma_t = scratch.theta_new, scratch.col_new, adaptation.sigma_theta
-    use_prior = mode == MODE_PBICRL or mode == MODE_BPL
-    m = j - moves.d_known
-    p0 = cons.poff[m]
-    p1 = cons.poff[m + 1]
-    counts[C_T_PROP] += 1
-    adaptation.theta_stats[3, p0] += 1
+    theta_new, col_new, sigma_t = scratch.theta_new, scratch.col_new, ad.sigma_theta
+    use_prior = ctx.mode == MODE_PBICRL or ctx.mode == MODE_BPL
+    p0, p1 = _param_range(j, ctx)
+    ctx.counts[C_T_PROP] += 1
+    ad.theta_stats[3, p0] += 1
     ok = False
     for p in range(theta.size):
         theta_new[p] = theta[p]
     for p in range(p0, p1):
-        theta_new[p] = theta[p] + sigma_t[p] * rnd.zt[t, p - p0]
+        theta_new[p] = theta[p] + sigma_t[p] * ctx.rnd.zt[t, p - p0]
     lpt_new = _logprior_theta(theta_new, p0, p1, cons.lo, cons.hi, use_prior)
     if lpt_new > -np.inf:
         lpt_old = _logprior_theta(theta, p0, p1, cons.lo, cons.hi, use_prior)
-        _column(m, theta_new, model.beta, cons, col_new, moves.naive)
+        _column(j - ctx.moves.d_known, theta_new, ctx.model.beta, cons, col_new, ctx.moves.naive)
         if pos.indicators[j] == 0:
             # paper mode only: a latent location leaves the likelihood unchanged
             ok = True
         else:
             for i in range(a.size):
                 scratch.a_new[i] = a[i] + pos.penalty_weights[j] * (col_new[i] - FbT[j, i])
-            ok, ll_new = mh_accept(lik, model.power, screen, scratch, counts, ll, rnd.u_acc[t], lpt_new, -lpt_old,
-                                   0.0, -1, np.nan)
+            ok, ll_new = mh_accept(ctx, t, ll, lpt_new, -lpt_old, 0.0, -1, np.nan)
             if ok:
                 for i in range(a.size):
                     a[i] = scratch.a_new[i]
@@ -418,19 +423,19 @@ def parameter(t: int, j: int, mode: int, screen: bool, pos: Position, lik: Likel
             for i in range(a.size):
                 FbT[j, i] = col_new[i]
     if ok:
-        counts[C_T_ACC] += 1
-        adaptation.theta_stats[4, p0] += 1
+        ctx.counts[C_T_ACC] += 1
+        ad.theta_stats[4, p0] += 1
     return ok, ll, lp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def joint(t: int, screen: bool, pos: Position, lik: LikelihoodArrays, moves: Moves, model: Model, rnd: Randoms,
-          adaptation: Adaptation, counts: np.ndarray, scratch: Scratch, act: np.ndarray, dw: np.ndarray, Lc: np.ndarray,
-          ll: float, lp: float) -> tuple[int, bool, float, float]:
+def joint(t: int, ctx: Context, act: np.ndarray, dw: np.ndarray, Lc: np.ndarray, ll: float,
+          lp: float) -> tuple[int, bool, float, float]:
     r"""All active weights together: :math:`w_A' = w_A + s\,(2.38/\sqrt{|A|})\,L z` (see :func:`advance`).
     Returns the move (``MOVE_NONE`` when no weight is active: nothing was proposed), accepted, log-densities."""
+    pos, ad, model = ctx.pos, ctx.adaptation, ctx.model
     a, FbT, c, w = pos.scaled_returns, pos.features_T, pos.indicators, pos.penalty_weights
-    cand, lsg, jsc = moves.cand, moves.log_sign, adaptation.joint_scale
+    cand, lsg, jsc = ctx.moves.cand, ctx.moves.log_sign, ad.joint_scale
     pkind, prm = model.prior_kind, model.prior_params
     m = 0
     for k in range(cand.size):
@@ -439,12 +444,12 @@ def joint(t: int, screen: bool, pos: Position, lik: LikelihoodArrays, moves: Mov
             m += 1
     if m == 0:
         return MOVE_NONE, False, ll, lp
-    counts[C_W_PROP] += 1
+    ctx.counts[C_W_PROP] += 1
     jsc[1] += 1.0
-    if not _cholesky_active(adaptation.joint_cov, act, m, Lc):
+    if not _cholesky_active(ad.joint_cov, act, m, Lc):
         for r in range(m):  # not positive definite: the single-site scales
             for q in range(m):
-                Lc[r, q] = adaptation.sigma[act[r]] if r == q else 0.0
+                Lc[r, q] = ad.sigma[act[r]] if r == q else 0.0
     sc = jsc[0] * 2.38 / math.sqrt(m)
     lp_old = 0.0
     lp_new = 0.0
@@ -452,7 +457,7 @@ def joint(t: int, screen: bool, pos: Position, lik: LikelihoodArrays, moves: Mov
     for r in range(m):
         acc_ = 0.0
         for q in range(r + 1):
-            acc_ += Lc[r, q] * rnd.zj[t, q]
+            acc_ += Lc[r, q] * ctx.rnd.zj[t, q]
         dw[r] = sc * acc_
         jj = act[r]
         if lsg[jj] != 0 and w[jj] != 0.0:  # a step on eta = log|w| (Jacobian |w'|/|w|)
@@ -462,15 +467,14 @@ def joint(t: int, screen: bool, pos: Position, lik: LikelihoodArrays, moves: Mov
         lp_new += logprior_w(pkind[jj], prm, jj, w[jj] + dw[r])
     ok = False
     if lp_new > -np.inf:
-        a_new = scratch.a_new
+        a_new = ctx.scratch.a_new
         for i in range(a.size):
             a_new[i] = a[i]
         for r in range(m):
             jj = act[r]
             for i in range(a.size):
                 a_new[i] += dw[r] * FbT[jj, i]
-        ok, ll_new = mh_accept(lik, model.power, screen, scratch, counts, ll, rnd.u_acc[t], lp_new, -lp_old, jac,
-                               -1, np.nan)
+        ok, ll_new = mh_accept(ctx, t, ll, lp_new, -lp_old, jac, -1, np.nan)
         if ok:
             for i in range(a.size):
                 a[i] = a_new[i]
@@ -479,7 +483,7 @@ def joint(t: int, screen: bool, pos: Position, lik: LikelihoodArrays, moves: Mov
             ll = ll_new
             lp += lp_new - lp_old
     if ok:
-        counts[C_W_ACC] += 1
+        ctx.counts[C_W_ACC] += 1
         jsc[2] += 1.0
     return MOVE_JOINT, ok, ll, lp
 
@@ -657,6 +661,7 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
     # explicit pairs only: the cheap bound of mh_accept
     screen = lik.kind == LIK_PAIRWISE and lik.bm.size == 0 and lik.pi.size >= 16
     joint_on = moves.p_joint > 0.0 and (mode == MODE_PBICRL or mode == MODE_BPL)
+    ctx = Context(mode, screen, pos, lik, cons, moves, model, rnd, adaptation, counts, scratch)
     act = np.empty(d, np.int64)
     bmemo = np.full(d, np.nan)
     dw = np.empty(d)
@@ -668,17 +673,13 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
         move, j = choose(t, it, mode, joint_on, pos.indicators, moves, rnd)
         accepted = False
         if move == MOVE_FLIP:
-            accepted, ll, lp = flip(t, j, mode, screen, pos, lik, cons, moves, model, rnd, adaptation, counts,
-                                    scratch, bmemo, ll, lp)
+            accepted, ll, lp = flip(t, j, ctx, bmemo, ll, lp)
         elif move == MOVE_WEIGHT:
-            accepted, ll, lp = weight(t, j, mode, screen, pos, lik, moves, model, rnd, adaptation, counts, scratch,
-                                      ll, lp)
+            accepted, ll, lp = weight(t, j, ctx, ll, lp)
         elif move == MOVE_PARAMETER:
-            accepted, ll, lp = parameter(t, j, mode, screen, pos, lik, cons, moves, model, rnd, adaptation, counts,
-                                         scratch, ll, lp)
+            accepted, ll, lp = parameter(t, j, ctx, ll, lp)
         elif move == MOVE_JOINT:
-            move, accepted, ll, lp = joint(t, screen, pos, lik, moves, model, rnd, adaptation, counts, scratch, act,
-                                           dw, Lc, ll, lp)
+            move, accepted, ll, lp = joint(t, ctx, act, dw, Lc, ll, lp)
         if accepted:
             _forget(move, j, latent, pos.indicators, scratch, bmemo)
         _track_best(pos, best, ll, lp)

@@ -13,7 +13,8 @@ The chain's state is three of them plus the counters (:class:`pbicrl.inference.s
 The others are inputs of one call: :class:`Schedule` (which iterations), :class:`Moves` (proposal settings),
 :class:`Model` (prior and tempering), :class:`ConstraintArrays` (parametric constraints), :class:`Randoms`
 (per-iteration random numbers), :class:`Draws` (kept-draw buffers) and :class:`Scratch`. The likelihood's
-arrays are :class:`pbicrl.inference.likelihood_kernels.LikelihoodArrays`.
+arrays are :class:`pbicrl.inference.likelihood_kernels.LikelihoodArrays`. :class:`Context` gathers what every
+move of the loop reads and updates, so that a move names the bundles it uses instead of taking them one by one.
 
 Arrays are mutated in place by the loop; :class:`pbicrl.inference.samplers.Kernel` copies the state first, so its
 ``init``/``step``/``run`` stay pure. Scalars that the loop updates live in small arrays (``log_density``).
@@ -21,13 +22,16 @@ Arrays are mutated in place by the loop; :class:`pbicrl.inference.samplers.Kerne
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
+if TYPE_CHECKING:
+    from pbicrl.inference.likelihood_kernels import LikelihoodArrays
+
 __all__ = ["Position", "Adaptation", "MapTracker", "Schedule", "Moves", "Model", "ConstraintArrays", "Randoms",
-           "Draws", "Scratch"]
+           "Draws", "Scratch", "Context"]
 
 
 class Position(NamedTuple):
@@ -207,3 +211,22 @@ class Scratch(NamedTuple):
     memo_valid: NDArray[np.bool_]
     memo_ll: NDArray[np.float64]
     last: NDArray[np.int64]
+
+
+class Context(NamedTuple):
+    """What the moves of one :func:`pbicrl.inference.samplers._mcmc.advance` call share: the sampler ``mode``
+    (``MODE_*``), ``screen`` (whether :func:`pbicrl.inference.samplers._mcmc.mh_accept` may reject on the cheap
+    bound of explicit pairs), and the call's bundles. Built once per call; the moves are inlined into the loop, so
+    reading a field through it costs nothing."""
+
+    mode: int
+    screen: bool
+    pos: Position
+    lik: LikelihoodArrays
+    cons: ConstraintArrays
+    moves: Moves
+    model: Model
+    rnd: Randoms
+    adaptation: Adaptation
+    counts: NDArray[np.int64]
+    scratch: Scratch

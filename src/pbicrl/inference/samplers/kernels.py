@@ -277,6 +277,11 @@ def _field(bundle: str, name: str, doc: str) -> property:
     return property(lambda self: getattr(getattr(self, bundle), name), doc=doc)
 
 
+def _density(bundle: str, index: int, doc: str) -> property:
+    """Read-only ``float(state.<bundle>.log_density[index])`` (the bundles keep their log-densities in an array)."""
+    return property(lambda self: float(getattr(self, bundle).log_density[index]), doc=doc)
+
+
 class ChainState(NamedTuple):
     r"""State of one chain: what the next step needs, in four parts.
 
@@ -322,23 +327,10 @@ class ChainState(NamedTuple):
     map_penalty_weights = _field("best", "penalty_weights", "MAP :math:`w_p`.")
     map_parameters = _field("best", "parameters", "MAP :math:`\\vartheta`.")
 
-    @property
-    def log_likelihood(self) -> float:
-        """Log-likelihood at the position."""
-        return float(self.position.log_density[0])
-
-    @property
-    def log_prior(self) -> float:
-        """Log-prior at the position (0 for the paper's flat improper prior)."""
-        return float(self.position.log_density[1])
-
-    @property
-    def map_log_posterior(self) -> float:
-        return float(self.best.log_density[0])
-
-    @property
-    def map_log_likelihood(self) -> float:
-        return float(self.best.log_density[1])
+    log_likelihood = _density("position", 0, "Log-likelihood at the position.")
+    log_prior = _density("position", 1, "Log-prior at the position (0 for the paper's flat improper prior).")
+    map_log_posterior = _density("best", 0, "Log-posterior of the MAP state.")
+    map_log_likelihood = _density("best", 1, "Log-likelihood of the MAP state.")
 
     def __repr__(self) -> str:
         # shapes and scalars only: scaled_returns and features_T hold one entry per trajectory
