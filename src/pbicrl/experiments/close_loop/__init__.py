@@ -283,6 +283,14 @@ def markdown_table(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _tick_name(kind: str) -> str:
+    """A policy kind as a tick label: ``inferred-<mode>`` on two lines (``probability`` as "P-weighted")."""
+    if kind.startswith("inferred-"):
+        mode = kind.split("-", 1)[1]
+        return "inferred\n(" + ("P-weighted" if mode == "probability" else mode) + ")"
+    return kind
+
+
 def plot(results: dict[str, Any], path: Path) -> None:
     """Per policy (bars: mean over seeds; dots: seeds): violation rate, true return, and how far it went -
     the furthest x with the true wall and the posterior's median wall (walls) or the episode length (point
@@ -297,9 +305,12 @@ def plot(results: dict[str, Any], path: Path) -> None:
     from pbicrl.analysis import style
 
     envs = list(results["envs"])
-    colours = {"nominal": "0.55", "true": style.GROUP_GOOD, "inferred": style.ACTIVE, "inferred-probability": "#7e57c2"}
+    colours = {"nominal": "0.55", "true": style.GROUP_GOOD, "inferred": style.ACTIVE, "inferred-probability": "#7e57c2",
+               "inferred-conservative": "#f0a030"}
     with style.rc():
-        fig, axes = plt.subplots(len(envs), 3, figsize=(13, 3.3 * len(envs)), squeeze=False, layout="constrained")
+        most = max(len(results["envs"][e]["policies"]) for e in envs)  # ~1.1 inch per bar keeps the ticks apart
+        fig, axes = plt.subplots(len(envs), 3, figsize=(max(13.0, 3.3 * 1.1 * most + 2.5), 3.3 * len(envs)),
+                                 squeeze=False, layout="constrained")
         for row, env in zip(axes, envs):
             r = results["envs"][env]
             pols = r["policies"]
@@ -312,9 +323,8 @@ def plot(results: dict[str, Any], path: Path) -> None:
                     vals = [e[key] for e in p["per_seed"]]
                     ax.bar(i, np.mean(vals), color=colours.get(kind, "tab:orange"), alpha=0.75)
                     ax.scatter(np.full(len(vals), i), vals, color="black", s=12, zorder=3)
-                # short tick names, one per policy: "inferred-probability" crowded its neighbours
-                ax.set_xticks(range(len(pols)), [k.replace("inferred-probability", "inferred\n(P-weighted)")
-                                                 for k in pols])
+                # short two-line tick names: "inferred-<mode>" in one line crowded its neighbours
+                ax.set_xticks(range(len(pols)), [_tick_name(k) for k in pols])
                 ax.set_xlabel("policy")
                 ax.set_ylabel(label)
                 ax.set_title(f"{env} ({n_seeds} seed{'s' if n_seeds != 1 else ''})")
