@@ -119,7 +119,8 @@ def layout_problems(fig: Any) -> list[str]:
 
     * a legend whose box overlaps the data area (the axes box) of an axes that shows data;
     * an axes that shows tick values on an axis with no label there (a label on another axes sharing that axis
-      counts), or data with no label at all.
+      counts), or data with no label at all;
+    * x tick labels of one axes that overlap each other (unreadable category names).
 
     The figure is drawn first (with its own layout engine), so positions are final.
     """
@@ -152,4 +153,9 @@ def layout_problems(fig: Any) -> list[str]:
             shared = (ax.get_shared_x_axes() if which == "x" else ax.get_shared_y_axes()).get_siblings(ax)
             if not any((o.get_xlabel() if which == "x" else o.get_ylabel()) for o in shared):
                 out.append(f"axes '{name}': {which} axis shows values but has no label")
+        boxes = sorted(((t.get_window_extent(renderer), t.get_text()) for t in ax.get_xticklabels()
+                        if t.get_visible() and t.get_text()), key=lambda bt: bt[0].x0)
+        for (b0, t0), (b1, t1) in zip(boxes, boxes[1:]):
+            if b0.x1 - b1.x0 > 1 and min(b0.y1, b1.y1) - max(b0.y0, b1.y0) > 1:
+                out.append(f"axes '{name}': x tick labels {t0!r} and {t1!r} overlap")
     return out
