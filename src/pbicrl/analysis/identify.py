@@ -76,6 +76,9 @@ _T_MIN = 1e-6
 # Box on standardised weights so that relaxed (cutting-plane) LPs stay bounded; ends of the separating set are
 # only asked for where the recession LP says they are finite, so the box is never active at the solution.
 _BIG = 1e10
+_END_BOXES = (1e5, 1e7)  # boxes tried first for the ends of S_alpha (see identify's end())
+# Warm-started HiGHS models (_LPSolver): None = when highspy is installed, False = never (scipy's linprog for every LP)
+_WARM: bool | None = None
 _TABLE_MARGINS = 12  # margins listed in the header of Identification.table (a total ranking has K - 1 of them)
 
 
@@ -429,6 +432,110 @@ def _finite_or_none(v: float) -> float | None:
 
 
 # ---------------------------------------------------------------------------------------------- LPs
+class _LPSolver:
+    """``min c @ x`` s.t. ``A @ x <= b``, ``lb <= x <= ub`` with HiGHS.
+
+    With the optional ``highspy`` package (``pip install highspy``) every *slot* (one kind of LP: the per-feature
+    recession LPs, the sparsest directions, the ends of the separating set) keeps one HiGHS model; the next LP of that
+    slot is passed as the changes from the last one (an objective entry, a bound, a coefficient of an extra row), and
+    HiGHS starts from the last optimal basis, a few simplex iterations instead of a solve from scratch. Without
+    ``highspy``, or for an LP without a slot, or when a warm solve ends in anything but optimal or infeasible, each LP
+    is solved on its own by :func:`scipy.optimize.linprog` (the HiGHS that SciPy ships). Both give the same optimal
+    values; where an LP has several optimal vertices they may return different ones.
+    """
+
+    def __init__(self, warm: bool | None = None) -> None:
+        hs = None
+        if warm is None or warm:
+            try:
+                import highspy as hs
+            except ImportError:
+                if warm:
+                    raise
+        self._hs = hs
+        self._models: dict[str, list[Any]] = {}
+
+    @property
+    def warm(self) -> bool:
+        """Whether LPs with a slot reuse a HiGHS model (``highspy`` installed)."""
+        return self._hs is not None
+
+    def solve(self, slot: str | None, c: NDArray[np.float64], A: Any, b: NDArray[np.float64], lb: NDArray[np.float64],
+              ub: NDArray[np.float64], extra: Any = None, extra_b: NDArray[np.float64] | None = None
+              ) -> tuple[int, NDArray[np.float64] | None, str]:
+        """``(status, x, message)``; status as :func:`scipy.optimize.linprog` (0 optimal, 2 infeasible). ``A`` (csr)
+        is reused between calls (the working set's rows: the same object until the set grows), ``extra`` (csr) are the
+        rows that change from one LP to the next."""
+        if self._hs is not None and slot is not None:
+            out = self._solve_warm(slot, c, A, b, lb, ub, extra, extra_b)
+            if out is not None:
+                return out
+            self._models.pop(slot, None)  # anything unusual: solve from scratch, and rebuild the model next time
+        from scipy.optimize import linprog
+        from scipy.sparse import vstack
+
+        if extra is not None:
+            A = vstack([A, extra], format="csr")
+            b = np.concatenate([b, extra_b])
+        bnd = np.column_stack([np.where(np.isinf(lb), None, lb), np.where(np.isinf(ub), None, ub)])
+        res = linprog(c, A_ub=A, b_ub=b, bounds=bnd, method="highs")
+        return int(res.status), (res.x if res.status == 0 else None), str(res.message)
+
+    def _solve_warm(self, slot: str, c: NDArray[np.float64], A: Any, b: NDArray[np.float64], lb: NDArray[np.float64],
+                    ub: NDArray[np.float64], extra: Any, extra_b: NDArray[np.float64] | None
+                    ) -> tuple[int, NDArray[np.float64] | None, str] | None:
+        from scipy.sparse import csr_matrix
+
+        hs = self._hs
+        E = csr_matrix((0, A.shape[1])) if extra is None else csr_matrix(extra)
+        e = np.zeros(0) if extra_b is None else np.asarray(extra_b, dtype=np.float64)
+        m = self._models.get(slot)
+        if m is None or m[1] is not A or m[2].shape != E.shape:
+            from scipy.sparse import vstack
+
+            full = vstack([A, E], format="csr")
+            full.sort_indices()
+            h = hs.Highs()
+            h.setOptionValue("output_flag", False)
+            lp = hs.HighsLp()
+            lp.num_col_, lp.num_row_ = full.shape[1], full.shape[0]
+            lp.col_cost_, lp.col_lower_, lp.col_upper_ = c, lb, ub
+            lp.row_lower_ = np.full(full.shape[0], -np.inf)
+            lp.row_upper_ = np.concatenate([b, e])
+            lp.a_matrix_.format_ = hs.MatrixFormat.kRowwise
+            lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = full.shape[1], full.shape[0]
+            lp.a_matrix_.start_, lp.a_matrix_.index_, lp.a_matrix_.value_ = full.indptr, full.indices, full.data
+            if h.passModel(lp) == hs.HighsStatus.kError:  # kWarning: entries below 1e-9 dropped, as linprog does
+                return None
+            m = [h, A, E, c.copy(), lb.copy(), ub.copy(), np.concatenate([b, e])]
+            self._models[slot] = m
+        else:
+            h, _, E0, c0, lb0, ub0, r0 = m
+            D = (E - E0).tocoo()
+            if D.nnz:  # coefficients of the extra rows that changed (or appeared, or went to 0)
+                vals = np.asarray(E[D.row, D.col]).ravel()
+                for i, j, v in zip((D.row + A.shape[0]).tolist(), D.col.tolist(), vals.tolist()):
+                    h.changeCoeff(i, j, v)
+            k = np.flatnonzero(c != c0)
+            if k.size:
+                h.changeColsCost(k.size, k.astype(np.int32), c[k])
+            k = np.flatnonzero((lb != lb0) | (ub != ub0))
+            if k.size:
+                h.changeColsBounds(k.size, k.astype(np.int32), lb[k], ub[k])
+            r = np.concatenate([b, e])
+            k = np.flatnonzero(r != r0)
+            if k.size:
+                h.changeRowsBounds(k.size, k.astype(np.int32), np.full(k.size, -np.inf), r[k])
+            m[2:] = [E, c.copy(), lb.copy(), ub.copy(), r]
+        h.run()
+        st = h.getModelStatus()
+        if st == hs.HighsModelStatus.kOptimal:
+            return 0, np.asarray(h.getSolution().col_value, dtype=np.float64), "optimal"
+        if st == hs.HighsModelStatus.kInfeasible:
+            return 2, None, "infeasible"
+        return None
+
+
 class _GroupLP:
     r"""Cutting-plane LPs over group extremes.
 
@@ -459,12 +566,13 @@ class _GroupLP:
 
     def __init__(self, X: NDArray[np.float64], c: NDArray[np.float64], starts: NDArray[np.int64], *,
                  gaps: NDArray[np.float64] | None = None, shift: NDArray[np.float64] | None = None,
-                 base: float = 0.0) -> None:
+                 base: float = 0.0, warm: bool | None = None) -> None:
         if (gaps is None) == (shift is None):
             raise ValueError("_GroupLP: give either gaps (K x K) or shift (K) with base")
         if shift is not None and not base >= 0.0:
             raise ValueError("_GroupLP: adjacent ordering rows need base >= 0")
         self.X, self.c, self.starts = X, c, starts
+        self.x_max = float(np.max(np.abs(X), initial=0.0))
         self.gaps, self.shift, self.base = gaps, shift, float(base)
         self.N, self.p = X.shape
         self.K = starts.size - 1
@@ -495,6 +603,7 @@ class _GroupLP:
             self.gap_max = float(np.max(np.abs(gaps), initial=0.0))
         self._order_rows = self._ordering_rows()
         self._rows_cache: tuple[int, bool, Any] | None = None
+        self.solver = _LPSolver(_WARM if warm is None else warm)
         self._seed()
 
     @staticmethod
@@ -589,7 +698,9 @@ class _GroupLP:
             c_parts.append(np.tile(np.arange(p), rows.size))
             v_parts.append((sign * self.X[m]).ravel())
             rhs[rows] -= sign * self.c[m]
-        A = coo_matrix((np.concatenate(v_parts), (np.concatenate(r_parts), np.concatenate(c_parts))),
+        vals = np.concatenate(v_parts)
+        nz = vals != 0.0  # sparse features stay sparse
+        A = coo_matrix((vals[nz], (np.concatenate(r_parts)[nz], np.concatenate(c_parts)[nz])),
                        shape=(n, self.keep.size)).tocsr()
         return A, rhs, rhs_h
 
@@ -636,34 +747,37 @@ class _GroupLP:
     # -- solve
     def solve(self, objective: NDArray[np.float64], bounds: list[tuple[float | None, float | None]], *,
               homogeneous: bool, extra_A: NDArray[np.float64] | Any | None = None,
-              extra_b: NDArray[np.float64] | None = None) -> NDArray[np.float64] | None:
+              extra_b: NDArray[np.float64] | None = None, slot: str | None = None) -> NDArray[np.float64] | None:
         """Minimise ``objective @ z``; ``None`` if infeasible. ``bounds`` cover all ``n_var`` variables; ``extra_A``
-        (dense or sparse) adds rows ``extra_A @ z <= extra_b``."""
-        from scipy.optimize import linprog
-        from scipy.sparse import csr_matrix, vstack
+        (dense or sparse) adds rows ``extra_A @ z <= extra_b``. LPs of one ``slot`` (same kind, differing in a few
+        entries) warm-start one another (:class:`_LPSolver`)."""
+        from scipy.sparse import csr_matrix
 
         # callers never weight the bound variables of single-trajectory groups (they are not LP columns)
         extra = None if extra_A is None else csr_matrix(extra_A)[:, self.keep]
-        obj = np.asarray(objective)[self.keep]
-        bnd = [bounds[i] for i in self.keep]
+        obj = np.asarray(objective, dtype=np.float64)[self.keep]
+        lb = np.array([-np.inf if bounds[i][0] is None else bounds[i][0] for i in self.keep], dtype=np.float64)
+        ub = np.array([np.inf if bounds[i][1] is None else bounds[i][1] for i in self.keep], dtype=np.float64)
         while True:
             A, b = self._rows(homogeneous)
-            if extra is not None:
-                A = vstack([A, extra], format="csr")
-                b = np.concatenate([b, extra_b])
-            res = linprog(obj, A_ub=A, b_ub=b, bounds=bnd, method="highs")
+            status, z, message = self.solver.solve(slot, obj, A, b, lb, ub, extra, extra_b)
             self.n_lp += 1
-            if res.status == 2:
+            if status == 2:
                 return None  # a relaxation is infeasible, hence the full problem too
-            if res.status != 0:
-                raise RuntimeError(f"identify: LP solver failed ({res.message})")
-            w = res.x[:self.p]
-            scale = 1.0 + float(np.max(np.abs(w), initial=0.0)) * float(np.max(np.abs(self.X), initial=0.0))
-            if not homogeneous:
-                scale += float(np.max(np.abs(self.c), initial=0.0)) + self.gap_max
-            if not self._violated(w, homogeneous, 1e-7 * scale):
+            if status != 0 or z is None:
+                raise RuntimeError(f"identify: LP solver failed ({message})")
+            w = z[:self.p]
+            if homogeneous:  # |w| <= 1 (the recession box)
+                tol = 1e-7 * (1.0 + float(np.max(np.abs(w), initial=0.0)) * self.x_max)
+            else:
+                # The solver's tolerance on the data's scale, plus the rounding of returns c + X w: where a penalty sits
+                # at the box (+-1e10, a companion of an unbounded one) 1e-7 |w| would let violations of 1e3 pass and
+                # stop the cutting planes short of the optimum (a wrong end of S_alpha).
+                big = float(np.max(np.abs(self.X) @ np.abs(w), initial=0.0)) if self.p else 0.0
+                tol = 1e-7 * (1.0 + float(np.max(np.abs(self.c), initial=0.0)) + self.gap_max) + 1e-13 * big
+            if not self._violated(w, homogeneous, tol):
                 x = np.zeros(self.n_var)
-                x[self.keep] = res.x
+                x[self.keep] = z
                 one = np.flatnonzero(self.single)
                 ret = self.X[self.member[one]] @ w + (0.0 if homogeneous else self.c[self.member[one]])
                 x[self.p + one] = ret
@@ -844,6 +958,14 @@ class _Progress:
             self.bar.close()
 
 
+def _shifted(F: NDArray[np.float64], spread: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Columns of ``F`` over their ``spread``, shifted by 0 where the column's range contains 0 and by the column's
+    minimum otherwise: every entry in [-1, 1], and a zero of ``F`` stays an exact zero."""
+    lo, hi = F.min(axis=0), F.max(axis=0)
+    shift = np.where((lo <= 0.0) & (hi >= 0.0), 0.0, lo)
+    return np.ascontiguousarray((F - shift) / spread)
+
+
 _FLAT_PARTNERS_SHOWN = 20  # partners listed per affinely dependent feature (with more features than trajectories
 # every feature depends on nearly every other: the full lists would be p^2 names)
 
@@ -922,7 +1044,7 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
     while rest.any():
         obj = np.zeros(lp.n_var)
         obj[:p] = rest.astype(np.float64)  # minimise sum_R delta_j = maximise sum_R -delta_j
-        x = lp.solve(obj, bnd, homogeneous=True)
+        x = lp.solve(obj, bnd, homogeneous=True, slot="support")
         tick.step()
         if x is None or -float(obj[:p] @ x[:p]) <= _T_MIN:
             break
@@ -1074,12 +1196,18 @@ def identify(
     # one tolerance fits all features; weights map back by w_j = w~_j / spread_j.
     X = (F[order][:, free] - F[:, free].mean(axis=0)) / s if p else np.zeros((F.shape[0], 0))
     X = np.ascontiguousarray(X)
+    # The LPs see each column shifted by a constant instead of centred: a shift moves every return, and with it the
+    # group bounds u, v, by the same amount, so every LP has the same penalties feasible and the same optimal value.
+    # Shifting by 0 where the column takes 0 (else by its minimum) keeps |X| <= 1, so one tolerance still fits all,
+    # and keeps sparse features (indicators, cell fractions) sparse: centred, a cell 3 of 300 trajectories visit has
+    # 300 non-zeros in every LP row block, shifted it has 3.
+    X_lp = _shifted(F[order][:, free], s) if p else X
     c = F[order] @ wn
     L = math.log((1.0 - alpha) / alpha)
     if mar.offsets is not None:  # additive margins (zeros, gaps): O(K) ordering rows, nothing K x K
-        lp = _GroupLP(X, c, starts, shift=mar.offsets / beta, base=L / beta)
+        lp = _GroupLP(X_lp, c, starts, shift=mar.offsets / beta, base=L / beta)
     else:  # a general matrix, given as such
-        lp = _GroupLP(X, c, starts, gaps=(mar.matrix + L) / beta)
+        lp = _GroupLP(X_lp, c, starts, gaps=(mar.matrix + L) / beta)
     from scipy.sparse import csr_matrix
 
     nv, it, ia = lp.n_var, p + 2 * K, p + 2 * K + 1
@@ -1087,9 +1215,30 @@ def identify(
 
     free_uv: list[tuple[float | None, float | None]] = [(None, None)] * (2 * K)  # group bounds u, v
 
-    def w_bounds() -> list[tuple[float | None, float | None]]:
-        b: list[tuple[float | None, float | None]] = [(-_BIG, 0.0 if neg else _BIG)] * p
+    def w_bounds(box: float = _BIG) -> list[tuple[float | None, float | None]]:
+        b: list[tuple[float | None, float | None]] = [(-box, 0.0 if neg else box)] * p
         return b + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
+
+    def end(obj: NDArray[np.float64], a: int) -> NDArray[np.float64]:
+        """A maximiser of ``-obj @ z`` over S_alpha, accurate where companions of unbounded penalties could run to
+        the box: a vertex at +-1e10 loses digits (the returns are sums of terms of 1e10; HiGHS's tolerances apply to
+        them). The optimal value v(B) under a box B is concave, non-decreasing and piecewise linear in B, and finite
+        ends are attained: so where no penalty sits at a box of 1e5 the box is inactive and the point optimal; where
+        v(1e7) = v(1e5), v is flat from there on, v(1e5) is the end. Else (an end at infinity): the box of 1e10."""
+        prev = None
+        for box in _END_BOXES:
+            x = lp.solve(obj, w_bounds(box), homogeneous=False, slot=f"ends {box:g}")
+            if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
+                raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+            if not np.any(np.abs(x[:p]) >= 0.5 * box):
+                return x
+            if prev is not None and abs(x[a] - prev[a]) <= 1e-9 * (1.0 + abs(prev[a])):
+                return prev
+            prev = x
+        x = lp.solve(obj, w_bounds(), homogeneous=False, slot="ends")
+        if x is None:
+            raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+        return x
 
     # ---- flat directions (affine dependence among free candidates): the likelihood is constant along them
     flat_groups = {free[a]: ([free[b] for b in bs], more) for a, (bs, more) in _flat_partners(X).items()}
@@ -1113,12 +1262,15 @@ def identify(
             extra = np.zeros((2, nv))
             extra[0, a], extra[0, it] = -sgn, 1.0     # t - sgn*delta_j <= 0
             extra[1, :p], extra[1, it] = -gbar, 1.0   # t - gbar@delta <= 0 (strict improvement, not flat)
-            x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2))
+            x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2), slot="recession")
             if x is None or x[it] <= _T_MIN:
                 continue
             # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others.
             d0 = x[:p] / abs(x[a])
-            eps = 0.5 * float(gbar @ d0)
+            # Half the best improvement t* (the LP's optimal value), not half that of the vertex HiGHS returned
+            # (gbar @ d0 >= t*): which optimal vertex comes back depends on the solver's path (on a constant shift of a
+            # column, a warm start), and the companions and coefficients of the sparsest direction changed with it.
+            eps = 0.5 * float(x[it])
             obj = np.zeros(nv)
             bnd = [((None, 0.0) if neg else (None, None))] * p + free_uv + [(0.0, 0.0)] + [(0.0, None)] * p
             bnd[a] = (sgn, sgn)
@@ -1137,7 +1289,7 @@ def identify(
                 extra = csr_matrix((vv, (rr, cc)), shape=(2 * p + 1, nv))
             rhs = np.zeros(extra.shape[0])
             rhs[0] = -eps                              # gbar@delta >= eps
-            y = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=rhs)
+            y = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=rhs, slot="sparsest")
             delta = (y[:p] if y is not None else d0) / s
             recess[j][int(sgn)] = delta / np.abs(delta).max()
         tick.step()
@@ -1166,9 +1318,7 @@ def identify(
                     continue
                 obj = np.zeros(nv)
                 obj[a] = -sgn
-                x = lp.solve(obj, w_bounds(), homogeneous=False)
-                if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
-                    raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+                x = end(obj, a)
                 if neg:
                     at_zero |= x[:p] == 0.0
                 ends.append(sgn * math.inf if abs(x[a]) >= 0.5 * _BIG else float(x[a]) / s[a])
