@@ -573,6 +573,12 @@ class _GroupLP:
             raise ValueError("_GroupLP: adjacent ordering rows need base >= 0")
         self.X, self.c, self.starts = X, c, starts
         self.x_max = float(np.max(np.abs(X), initial=0.0))
+        from scipy.sparse import csr_matrix
+
+        # Products with X in the cutting-plane loop go through scipy.sparse, not BLAS: OpenBLAS's threads, woken by a
+        # product of a few hundred rows, spin afterwards and took the solver's core on a loaded machine (3x slower).
+        self._Xs = csr_matrix(X)
+        self._absXs = abs(self._Xs)
         self.gaps, self.shift, self.base = gaps, shift, float(base)
         self.N, self.p = X.shape
         self.K = starts.size - 1
@@ -735,7 +741,7 @@ class _GroupLP:
         return A, b
 
     def _violated(self, w: NDArray[np.float64], homogeneous: bool, tol: float) -> bool:
-        r = self.X @ w if homogeneous else self.c + self.X @ w
+        r = self._Xs @ w if homogeneous else self.c + self._Xs @ w
         lo = np.minimum.reduceat(r, self.starts[:-1])
         hi = np.maximum.reduceat(r, self.starts[:-1])
         need = 0.0 if homogeneous else self.pair_gap
@@ -773,13 +779,13 @@ class _GroupLP:
                 # The solver's tolerance on the data's scale, plus the rounding of returns c + X w: where a penalty sits
                 # at the box (+-1e10, a companion of an unbounded one) 1e-7 |w| would let violations of 1e3 pass and
                 # stop the cutting planes short of the optimum (a wrong end of S_alpha).
-                big = float(np.max(np.abs(self.X) @ np.abs(w), initial=0.0)) if self.p else 0.0
+                big = float(np.max(self._absXs @ np.abs(w), initial=0.0)) if self.p else 0.0
                 tol = 1e-7 * (1.0 + float(np.max(np.abs(self.c), initial=0.0)) + self.gap_max) + 1e-13 * big
             if not self._violated(w, homogeneous, tol):
                 x = np.zeros(self.n_var)
                 x[self.keep] = z
                 one = np.flatnonzero(self.single)
-                ret = self.X[self.member[one]] @ w + (0.0 if homogeneous else self.c[self.member[one]])
+                ret = self._Xs[self.member[one]] @ w + (0.0 if homogeneous else self.c[self.member[one]])
                 x[self.p + one] = ret
                 x[self.p + self.K + one] = ret
                 return x
@@ -935,18 +941,21 @@ def threshold_interval(dataset: Dataset, constraint: AxisHalfspace, *, name: str
 
 
 # ---------------------------------------------------------------------------------------------- main
-_PROGRESS_DELAY_S = 3.0
+_PROGRESS_DELAY_S = 2.0
 
 
 class _Progress:
-    """A tqdm bar on stderr that appears only after :data:`_PROGRESS_DELAY_S` seconds (or nothing)."""
+    """A tqdm bar on stderr (or nothing) that appears once the analysis started at ``t0`` (``time.perf_counter``)
+    has run :data:`_PROGRESS_DELAY_S` seconds, so a quick analysis prints nothing and a long one shows each phase."""
 
-    def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature") -> None:
+    def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature",
+                 t0: float | None = None) -> None:
         self.bar = None
         if enabled:
             from tqdm import tqdm
 
-            self.bar = tqdm(desc=what, total=total, unit=unit, delay=_PROGRESS_DELAY_S, leave=False,
+            waited = 0.0 if t0 is None else time.perf_counter() - t0
+            self.bar = tqdm(desc=what, total=total, unit=unit, delay=max(0.0, _PROGRESS_DELAY_S - waited), leave=False,
                             dynamic_ncols=True)
 
     def step(self) -> None:
@@ -986,7 +995,11 @@ def _flat_partners(X: NDArray[np.float64]) -> dict[int, tuple[list[int], bool]]:
         # costs nothing and the QR is one O(N p^2) pass without forming Q.
         _, sv, vt = np.linalg.svd(np.linalg.qr(X, mode="r"))
     else:
-        _, sv, vt = np.linalg.svd(X, full_matrices=False)  # the other p - N singular values are 0
+        # X^T = Q R (Householder, p x N), R^T = U S W^T, so X = U S (Q W)^T: the thin SVD from an N x N one, 20-50x
+        # faster than LAPACK's on the wide matrix when OpenBLAS shares a loaded machine; the other p - N values are 0.
+        q, r = np.linalg.qr(X.T)
+        _, sv, wt = np.linalg.svd(r.T)
+        vt = wt @ q.T
         sv = np.concatenate([sv, np.zeros(p - N)])
     tol = sv.max() * max(X.shape) * np.finfo(float).eps
     rank = int(np.sum(sv[:vt.shape[0]] > tol))
@@ -1246,12 +1259,12 @@ def identify(
     # ---- recession analysis (independent of alpha, beta, margins)
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
-    tick = _Progress(progress, "identify: unbounded penalties", unit="LP")
+    tick = _Progress(progress, "identify: unbounded penalties", unit="LP", t0=t0)
     movable = _recession_support(lp, p, K, free_uv, tick) if neg else list(range(p))
     if movable and not _improving(lp, p, free_uv, gbar, neg, tick):
         movable = []
     tick.close()
-    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable))
+    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable), t0=t0)
     for a in movable:
         j = free[a]
         for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
@@ -1300,7 +1313,7 @@ def identify(
     separable = x0 is not None
     rng: dict[int, tuple[float, float]] = {}
     tick.close()
-    tick = _Progress(progress and separable and p > 0, "identify: separation scales", total=p)
+    tick = _Progress(progress and separable and p > 0, "identify: separation scales", total=p, t0=t0)
     if separable:
         # A point of S_alpha with w_j = 0 settles the upper end of w_j <= 0 (it is 0) without an LP; the vertices
         # HiGHS returns have few non-zero penalties, so with many features most ends are settled by the points
