@@ -454,6 +454,7 @@ class _LPSolver:
                     raise
         self._hs = hs
         self._models: dict[str, list[Any]] = {}
+        self.reduced_costs: NDArray[np.float64] | None = None  # of the last optimal LP
 
     @property
     def warm(self) -> bool:
@@ -479,6 +480,9 @@ class _LPSolver:
             b = np.concatenate([b, extra_b])
         bnd = np.column_stack([np.where(np.isinf(lb), None, lb), np.where(np.isinf(ub), None, ub)])
         res = linprog(c, A_ub=A, b_ub=b, bounds=bnd, method="highs")
+        self.reduced_costs = None
+        if res.status == 0:
+            self.reduced_costs = np.asarray(res.lower.marginals) + np.asarray(res.upper.marginals)
         return int(res.status), (res.x if res.status == 0 else None), str(res.message)
 
     def _solve_warm(self, slot: str, c: NDArray[np.float64], A: Any, b: NDArray[np.float64], lb: NDArray[np.float64],
@@ -530,7 +534,9 @@ class _LPSolver:
         h.run()
         st = h.getModelStatus()
         if st == hs.HighsModelStatus.kOptimal:
-            return 0, np.asarray(h.getSolution().col_value, dtype=np.float64), "optimal"
+            sol = h.getSolution()
+            self.reduced_costs = np.asarray(sol.col_dual, dtype=np.float64)
+            return 0, np.asarray(sol.col_value, dtype=np.float64), "optimal"
         if st == hs.HighsModelStatus.kInfeasible:
             return 2, None, "infeasible"
         return None
@@ -610,6 +616,7 @@ class _GroupLP:
         self._order_rows = self._ordering_rows()
         self._rows_cache: tuple[int, bool, Any] | None = None
         self.solver = _LPSolver(_WARM if warm is None else warm)
+        self.reduced_costs = np.zeros(self.n_var)  # of the last solve's optimum (full layout)
         self._seed()
 
     @staticmethod
@@ -784,6 +791,9 @@ class _GroupLP:
             if not self._violated(w, homogeneous, tol):
                 x = np.zeros(self.n_var)
                 x[self.keep] = z
+                self.reduced_costs = np.zeros(self.n_var)
+                if self.solver.reduced_costs is not None:
+                    self.reduced_costs[self.keep] = self.solver.reduced_costs
                 one = np.flatnonzero(self.single)
                 ret = self._Xs[self.member[one]] @ w + (0.0 if homogeneous else self.c[self.member[one]])
                 x[self.p + one] = ret
@@ -1069,7 +1079,8 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
     return sorted(found)
 
 
-def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64], neg: bool, tick: _Progress) -> bool:
+def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64], neg: bool,
+               tick: _Progress) -> NDArray[np.float64] | None:
     r"""Whether some direction of the recession cone improves the ranking (is not flat): :math:`\max \bar g^\top
     \delta > T_{min}` over the cone within the per-feature LPs' box.
 
@@ -1077,13 +1088,15 @@ def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64],
     the threshold no penalty is unbounded and none of them needs solving (exact, not a heuristic). That is the
     usual case for rankings no direction orders, e.g. noisy ones, where the cone holds only flat directions (an
     affinely dependent set such as one-hot cells, whose fractions sum to 1), which move every feature they touch.
+
+    Returns the maximiser (a direction of the cone in that box) when it improves, else ``None``.
     """
     obj = np.zeros(lp.n_var)
     obj[:p] = -gbar
     bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
     x = lp.solve(obj, bnd, homogeneous=True)
     tick.step()
-    return x is not None and float(gbar @ x[:p]) > _T_MIN
+    return x[:p] if x is not None and float(gbar @ x[:p]) > _T_MIN else None
 
 
 def identify(
@@ -1150,13 +1163,17 @@ def identify(
     :math:`w_p \le 0`, the features some recession direction moves; whether any direction improves the ranking).
     Skipped: the recession LPs when no direction improves the ranking (then no penalty is unbounded), the upper end
     of :math:`w_{p,j} \le 0` when a point of :math:`S_\alpha` found so far has :math:`w_{p,j} = 0`, every end when
-    the ranking is not separable. Each LP is over
+    the ranking is not separable, and the recession LP of a feature whose best improvement :math:`t^*` a direction
+    found so far already attains (usually all but a few dozen). Each LP is over
     ``p + 2K + 1 (+ p)`` variables (less two per single-trajectory group) and the rows of a small working set of
     extreme trajectories (cutting planes, exact at termination) plus the group-ordering rows: K - 1 for additive
     margins (zeros, gaps), K(K-1)/2 for a general matrix; every round checks all ``N`` trajectories in
-    :math:`O(Np + K)`. Memory is O(N p + K) for additive margins: a total ranking of 20,000 trajectories takes a
-    few seconds and tens of MB (``tests/analysis/test_identify.py``). With many features the per-feature LPs
-    dominate, each :math:`O(N p)` in size: ``benchmarks/reports/identify.md``.
+    :math:`O(Np + K)`. Features enter the LPs shifted, not centred, so a sparse feature (an indicator, a cell
+    fraction) keeps its zeros. With ``highspy`` installed (``pip install "pbicrl[lp]"``) the LPs of one kind are
+    warm-started from the last basis; else each is solved by :func:`scipy.optimize.linprog`. Memory is O(N p + K)
+    for additive margins: a total ranking of 20,000 trajectories takes a few seconds and tens of MB
+    (``tests/analysis/test_identify.py``). With many features the per-feature LPs dominate: 1,000 and 10,000 one-hot
+    cell features of 300 trajectories take tens of seconds (``benchmarks/reports/identify.md``).
     """
     t0 = time.perf_counter()
     if not isinstance(dataset, Dataset):
@@ -1237,13 +1254,16 @@ def identify(
         the box: a vertex at +-1e10 loses digits (the returns are sums of terms of 1e10; HiGHS's tolerances apply to
         them). The optimal value v(B) under a box B is concave, non-decreasing and piecewise linear in B, and finite
         ends are attained: so where no penalty sits at a box of 1e5 the box is inactive and the point optimal; where
-        v(1e7) = v(1e5), v is flat from there on, v(1e5) is the end. Else (an end at infinity): the box of 1e10."""
+        v(1e7) = v(1e5), v is flat from there on, v(1e5) is the end. Else (an end at infinity): the box of 1e10.
+        A penalty at the box whose reduced cost is 0 does not bind (the point with the same duals is optimal without
+        that bound, the KKT conditions hold), so where all of them are 0 the first box's point is optimal already."""
         prev = None
         for box in _END_BOXES:
             x = lp.solve(obj, w_bounds(box), homogeneous=False, slot=f"ends {box:g}")
             if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
                 raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
-            if not np.any(np.abs(x[:p]) >= 0.5 * box):
+            at_box = np.abs(x[:p]) >= 0.5 * box
+            if not np.any(at_box) or (abs(x[a]) < 0.5 * box and np.all(np.abs(lp.reduced_costs[:p][at_box]) <= 1e-9)):
                 return x
             if prev is not None and abs(x[a] - prev[a]) <= 1e-9 * (1.0 + abs(prev[a])):
                 return prev
@@ -1261,29 +1281,59 @@ def identify(
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
     tick = _Progress(progress, "identify: unbounded penalties", unit="LP", t0=t0)
     movable = _recession_support(lp, p, K, free_uv, tick) if neg else list(range(p))
-    if movable and not _improving(lp, p, free_uv, gbar, neg, tick):
+    best_dir = _improving(lp, p, free_uv, gbar, neg, tick) if movable else None
+    if best_dir is None:
         movable = []
     tick.close()
     tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable), t0=t0)
+    signs = (-1.0,) if neg else (-1.0, 1.0)
+    # The max-t LP of feature a, sign s: t* = max min(s delta_a, gbar@delta) over the cone in the box, t <= 1, so
+    # t* <= t_up = min(1, max gbar@delta) (the maximum is _improving's). Every direction D found so far (in the cone and
+    # the box) gives t* >= min(s D_a, gbar@D, 1); where that reaches t_up, t* is known and the LP is not solved. The
+    # directions HiGHS returns have most coordinates at -1 and gbar@D >= 1, so after a few dozen LPs nearly every
+    # feature is settled that way (exact: the same t*, up to the solver's tolerance).
+    t_up = min(1.0, float(gbar @ best_dir)) if best_dir is not None else 0.0
+    lower = {sg: np.full(p, -np.inf) for sg in signs}
+    lower_at = {sg: np.zeros(p, dtype=np.int64) for sg in signs}
+    found: list[NDArray[np.float64]] = []
+
+    def add_direction(D: NDArray[np.float64]) -> None:
+        g = min(1.0, float(gbar @ D))
+        if g <= _T_MIN:
+            return
+        found.append(D)
+        for sg in signs:
+            lb = np.minimum(sg * D, g)
+            better = lb > lower[sg]
+            lower[sg][better] = lb[better]
+            lower_at[sg][better] = len(found) - 1
+
+    if best_dir is not None:
+        add_direction(best_dir)
     for a in movable:
         j = free[a]
-        for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
-            # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
-            obj = np.zeros(nv)
-            obj[it] = -1.0
-            bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 1.0)] + [(0.0, 0.0)] * p
-            extra = np.zeros((2, nv))
-            extra[0, a], extra[0, it] = -sgn, 1.0     # t - sgn*delta_j <= 0
-            extra[1, :p], extra[1, it] = -gbar, 1.0   # t - gbar@delta <= 0 (strict improvement, not flat)
-            x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2), slot="recession")
-            if x is None or x[it] <= _T_MIN:
-                continue
+        for sgn in signs:
+            if lower[sgn][a] > _T_MIN and lower[sgn][a] >= t_up - 1e-9:
+                t_star, d0 = float(lower[sgn][a]), found[lower_at[sgn][a]]
+            else:
+                # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
+                obj = np.zeros(nv)
+                obj[it] = -1.0
+                bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 1.0)] + [(0.0, 0.0)] * p
+                extra = np.zeros((2, nv))
+                extra[0, a], extra[0, it] = -sgn, 1.0     # t - sgn*delta_j <= 0
+                extra[1, :p], extra[1, it] = -gbar, 1.0   # t - gbar@delta <= 0 (strict improvement, not flat)
+                x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2), slot="recession")
+                if x is None or x[it] <= _T_MIN:
+                    continue
+                add_direction(x[:p].copy())
+                t_star, d0 = float(x[it]), x[:p]
             # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others.
-            d0 = x[:p] / abs(x[a])
+            d0 = d0 / abs(d0[a])
             # Half the best improvement t* (the LP's optimal value), not half that of the vertex HiGHS returned
             # (gbar @ d0 >= t*): which optimal vertex comes back depends on the solver's path (on a constant shift of a
             # column, a warm start), and the companions and coefficients of the sparsest direction changed with it.
-            eps = 0.5 * float(x[it])
+            eps = 0.5 * t_star
             obj = np.zeros(nv)
             bnd = [((None, 0.0) if neg else (None, None))] * p + free_uv + [(0.0, 0.0)] + [(0.0, None)] * p
             bnd[a] = (sgn, sgn)
