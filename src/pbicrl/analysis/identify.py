@@ -1263,7 +1263,9 @@ def identify(
             if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
                 raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
             at_box = np.abs(x[:p]) >= 0.5 * box
-            if not np.any(at_box) or (abs(x[a]) < 0.5 * box and np.all(np.abs(lp.reduced_costs[:p][at_box]) <= 1e-9)):
+            if not np.any(at_box):
+                return x
+            if abs(x[a]) < 0.5 * box and np.all(np.abs(lp.reduced_costs[:p][at_box]) <= 1e-12):
                 return x
             if prev is not None and abs(x[a] - prev[a]) <= 1e-9 * (1.0 + abs(prev[a])):
                 return prev
