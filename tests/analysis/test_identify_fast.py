@@ -207,3 +207,29 @@ def test_affine_dependence_without_a_p_by_p_projector(n, p):
         assert bs == want[a][:20] and more == (len(want[a]) > 20)
     if n > p:
         assert set(got) == {0, 1, 2}
+
+
+def test_without_highspy_every_lp_goes_to_scipy_with_the_same_answers(monkeypatch):
+    """``highspy`` is optional (``pbicrl[lp]``): when it cannot be imported the analysis falls back to
+    :func:`scipy.optimize.linprog` for every LP, silently, with the same answers."""
+    import sys
+
+    ds, kw = _problem(53)  # separable, finite and infinite ends, unbounded penalties
+    monkeypatch.setitem(sys.modules, "highspy", None)  # `import highspy` raises ImportError
+    assert not identify_module._LPSolver().warm
+    with pytest.raises(ImportError):
+        identify_module._LPSolver(warm=True)
+    cold = identify(ds, **kw)
+    monkeypatch.delitem(sys.modules, "highspy")
+    pytest.importorskip("highspy")
+    assert identify_module._LPSolver().warm
+    warm = identify(ds, **kw)
+    assert cold.separable and warm.separable
+    finite = 0
+    for f, g in zip(cold.features, warm.features):
+        assert (f.unbounded, f.direction, f.identifiable) == (g.unbounded, g.direction, g.identifiable)
+        if g.penalty_range is not None:
+            for x, y in zip(f.penalty_range, g.penalty_range):
+                finite += math.isfinite(y)
+                assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-7, abs=1e-9)
+    assert finite > 0
