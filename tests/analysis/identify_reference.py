@@ -1,6 +1,11 @@
 """The identifiability analysis as it was before the speed-ups of issue 31 item 9 (commit 98b6793, verbatim below this
-docstring but for it): the oracle that tests/analysis/test_identify_fast.py compares the current one with. Not part of
-the package; do not import it from src/."""
+docstring but for it and one line marked CHANGED): the oracle that tests/analysis/test_identify_fast.py compares the
+current one with. Not part of the package; do not import it from src/.
+
+CHANGED (issue 31 item 9, second pass): the sparsest direction's required improvement is half the max-t LP's optimal
+value t*, no longer half the improvement ``gbar @ d0`` of the optimal vertex that HiGHS happened to return (which
+changed with a constant shift of a feature column or a warm start, and the reported companions with it). The same
+change is in src/pbicrl/analysis/identify.py."""
 
 
 from __future__ import annotations
@@ -977,7 +982,7 @@ def identify(
                 continue
             # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others.
             d0 = x[:p] / abs(x[a])
-            eps = 0.5 * float(gbar @ d0)
+            eps = 0.5 * float(x[it])  # CHANGED: was 0.5 * float(gbar @ d0), see the module docstring
             obj = np.zeros(nv)
             obj[ia:ia + p] = 1.0
             obj[ia + a] = 0.0

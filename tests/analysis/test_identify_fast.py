@@ -4,6 +4,13 @@
 per unbounded feature, one LP per end of every penalty, probes seeded one matrix product at a time, a p x p null-space
 projector); the current one must give the same answers on small random problems of every kind: separable or not,
 unbounded penalties or not, either sign, margins, single-trajectory groups, affinely dependent candidates.
+
+One change of definition is applied to both (marked in the reference): the sparsest direction asks for half the best
+improvement t* (the max-t LP's optimal value), where it asked for half the improvement of whichever optimal vertex the
+solver returned, so it no longer depends on the solver's path. Where the sparsest-direction LP itself has several
+optimal vertices (e.g. two candidates with the same standardised column) any of them is right: a direction that differs
+from the reference's must then be a recession direction on the data, improve the ranking and cost no more than the
+reference's in that LP's objective.
 """
 
 import importlib.util
@@ -14,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import pbicrl.analysis.identify as identify_module
 from pbicrl.analysis.identify import _GroupLP, _flat_partners, identify
 from pbicrl.inference.data import Dataset
 
@@ -62,15 +70,47 @@ def _same_direction(a: dict, b: dict) -> bool:
     return all(abs(a.get(k, 0.0) - b.get(k, 0.0)) <= 1e-6 for k in keys)
 
 
+def _cost(ds: Dataset, name: str, d: dict) -> float:
+    """The sparsest-direction LP's objective of ``d`` for feature ``name``: sum of |delta_i| over the other features
+    in standardised units (unit range), with |delta| = 1 on ``name``."""
+    F = ds.mean_features
+    s = F.max(axis=0) - F.min(axis=0)
+    idx = {n: j for j, n in enumerate(ds.feature_names)}
+    std = {n: abs(v) * s[idx[n]] for n, v in d.items()}
+    return sum(v for n, v in std.items() if n != name) / std[name]
+
+
+def _is_recession_direction(ds: Dataset, d: dict) -> bool:
+    """Along ``d`` no cross-group pair's return difference decreases and some increase (checked on the data)."""
+    delta = np.array([d.get(n, 0.0) for n in ds.feature_names])
+    r = ds.mean_features @ delta
+    labels = ds.group_labels
+    lo = np.array([r[ds.group == k].min() for k in labels])
+    hi = np.array([r[ds.group == k].max() for k in labels])
+    tol = 1e-6 * (1.0 + np.abs(r).max())
+    ordered = all(lo[k] >= hi[k + 1:].max() - tol for k in range(labels.size - 1))
+    return ordered and r[ds.group == labels[0]].mean() - r[ds.group == labels[-1]].mean() > tol
+
+
+def _companions_removed(reason: str) -> str:
+    return reason.split(";")[0].split(" together with")[0].split(" on its own")[0]
+
+
+@pytest.mark.parametrize("warm", [False, True], ids=["linprog", "highspy"])
 @pytest.mark.parametrize("seed", range(40))
-def test_the_fast_analysis_gives_the_reference_answers(seed):
+def test_the_fast_analysis_gives_the_reference_answers(seed, warm, monkeypatch):
+    if warm:
+        pytest.importorskip("highspy")
+    monkeypatch.setattr(identify_module, "_WARM", warm)
     ds, kw = _problem(seed)
     new, old = identify(ds, **kw), ref.identify(ds, **kw)
     assert new.separable == old.separable
     for f, g in zip(new.features, old.features):
         assert (f.name, f.candidate, f.identifiable, f.unbounded, f.direction) == \
             (g.name, g.candidate, g.identifiable, g.unbounded, g.direction), (seed, f, g)
-        assert f.reason.split(";")[0] == g.reason.split(";")[0]
+        if f.reason.split(";")[0] != g.reason.split(";")[0]:  # only the companions may differ, see below
+            assert _companions_removed(f.reason) == _companions_removed(g.reason), (seed, f.reason, g.reason)
+            assert f.recession != g.recession
         if g.min_penalty is None:
             assert f.min_penalty is None
         else:
@@ -81,7 +121,61 @@ def test_the_fast_analysis_gives_the_reference_answers(seed):
         for d_new, d_old in zip(f.recession, g.recession):
             # the sparsest direction is a vertex of an LP; where there are several, any is right: check it is one
             if not _same_direction(d_new, d_old):
-                assert sum(map(abs, d_new.values())) <= sum(map(abs, d_old.values())) + 1e-6, (seed, d_new, d_old)
+                assert _is_recession_direction(ds, d_new), (seed, f.name, d_new)
+                assert _cost(ds, f.name, d_new) <= _cost(ds, f.name, d_old) * (1 + 1e-6) + 1e-6, (seed, d_new, d_old)
+
+
+def _full_pair_ends(ds: Dataset, kw: dict, name: str) -> list[float]:
+    """The ends of ``name``'s penalty over S_alpha from one LP over every cross-group pair row (no box)."""
+    from scipy.optimize import linprog
+
+    from pbicrl.inference.preferences import Margins
+
+    F, wn, labels = ds.mean_features, ds.nominal_weights, ds.group_labels
+    cand = [ds.feature_names.index(n) for n in kw["candidates"]]
+    M = Margins.parse(kw.get("margins"), labels.size).matrix
+    L = math.log(0.95 / 0.05)
+    rows, rhs = [], []
+    for k in range(labels.size):
+        for l in range(k + 1, labels.size):
+            for i in np.flatnonzero(ds.group == labels[k]):
+                for j in np.flatnonzero(ds.group == labels[l]):  # beta (phi_i - phi_j) @ (w_n + w) >= m_kl + L
+                    rows.append(-(F[i] - F[j])[cand])
+                    rhs.append((F[i] - F[j]) @ wn - (M[k, l] + L) / kw["beta"])
+    box = [(None, 0.0) if kw["penalty_sign"] == "negative" else (None, None)] * len(cand)
+    a = cand.index(ds.feature_names.index(name))
+    out = []
+    for sgn in (-1.0, 1.0):
+        obj = np.zeros(len(cand))
+        obj[a] = -sgn
+        r = linprog(obj, A_ub=np.array(rows), b_ub=np.array(rhs), bounds=box, method="highs")
+        out.append(float(r.x[a]) if r.status == 0 else sgn * math.inf)
+    return out
+
+
+@pytest.mark.parametrize("warm", [False, True], ids=["linprog", "highspy"])
+@pytest.mark.parametrize("seed", [53, 345, 375])
+def test_ends_where_companions_reach_the_box_match_the_full_pair_lp(seed, warm, monkeypatch):
+    """Problems where the LP for an end of S_alpha has optimal vertices with a companion at the 1e10 box: such a vertex
+    lost digits (seed 53: -45.78 instead of -46.10, which the reference still gives when its solver path lands there);
+    the ends are now found under boxes that stay inactive, so they are the full pair LP's."""
+    if warm:
+        pytest.importorskip("highspy")
+    monkeypatch.setattr(identify_module, "_WARM", warm)
+    ds, kw = _problem(seed)
+    res = identify(ds, **kw)
+    checked = 0
+    for f in res.features:
+        if f.penalty_range is None or not f.candidate:
+            continue
+        want = _full_pair_ends(ds, kw, f.name)
+        for got, exact in zip(f.penalty_range, want):
+            if math.isinf(exact):
+                assert got == exact, (f.name, f.penalty_range, want)
+            else:
+                checked += 1
+                assert got == pytest.approx(exact, rel=1e-7, abs=1e-9), (f.name, f.penalty_range, want)
+    assert checked > 0
 
 
 def test_the_column_seeding_adds_the_extremes_the_probes_added():
@@ -113,3 +207,29 @@ def test_affine_dependence_without_a_p_by_p_projector(n, p):
         assert bs == want[a][:20] and more == (len(want[a]) > 20)
     if n > p:
         assert set(got) == {0, 1, 2}
+
+
+def test_without_highspy_every_lp_goes_to_scipy_with_the_same_answers(monkeypatch):
+    """``highspy`` is optional (``pbicrl[lp]``): when it cannot be imported the analysis falls back to
+    :func:`scipy.optimize.linprog` for every LP, silently, with the same answers."""
+    import sys
+
+    ds, kw = _problem(53)  # separable, finite and infinite ends, unbounded penalties
+    monkeypatch.setitem(sys.modules, "highspy", None)  # `import highspy` raises ImportError
+    assert not identify_module._LPSolver().warm
+    with pytest.raises(ImportError):
+        identify_module._LPSolver(warm=True)
+    cold = identify(ds, **kw)
+    monkeypatch.delitem(sys.modules, "highspy")
+    pytest.importorskip("highspy")
+    assert identify_module._LPSolver().warm
+    warm = identify(ds, **kw)
+    assert cold.separable and warm.separable
+    finite = 0
+    for f, g in zip(cold.features, warm.features):
+        assert (f.unbounded, f.direction, f.identifiable) == (g.unbounded, g.direction, g.identifiable)
+        if g.penalty_range is not None:
+            for x, y in zip(f.penalty_range, g.penalty_range):
+                finite += math.isfinite(y)
+                assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-7, abs=1e-9)
+    assert finite > 0

@@ -76,6 +76,9 @@ _T_MIN = 1e-6
 # Box on standardised weights so that relaxed (cutting-plane) LPs stay bounded; ends of the separating set are
 # only asked for where the recession LP says they are finite, so the box is never active at the solution.
 _BIG = 1e10
+_END_BOXES = (1e5, 1e7)  # boxes tried first for the ends of S_alpha (see identify's end())
+# Warm-started HiGHS models (_LPSolver): None = when highspy is installed, False = never (scipy's linprog for every LP)
+_WARM: bool | None = None
 _TABLE_MARGINS = 12  # margins listed in the header of Identification.table (a total ranking has K - 1 of them)
 
 
@@ -429,6 +432,116 @@ def _finite_or_none(v: float) -> float | None:
 
 
 # ---------------------------------------------------------------------------------------------- LPs
+class _LPSolver:
+    """``min c @ x`` s.t. ``A @ x <= b``, ``lb <= x <= ub`` with HiGHS.
+
+    With the optional ``highspy`` package (``pip install highspy``) every *slot* (one kind of LP: the per-feature
+    recession LPs, the sparsest directions, the ends of the separating set) keeps one HiGHS model; the next LP of that
+    slot is passed as the changes from the last one (an objective entry, a bound, a coefficient of an extra row), and
+    HiGHS starts from the last optimal basis, a few simplex iterations instead of a solve from scratch. Without
+    ``highspy``, or for an LP without a slot, or when a warm solve ends in anything but optimal or infeasible, each LP
+    is solved on its own by :func:`scipy.optimize.linprog` (the HiGHS that SciPy ships). Both give the same optimal
+    values; where an LP has several optimal vertices they may return different ones.
+    """
+
+    def __init__(self, warm: bool | None = None) -> None:
+        hs = None
+        if warm is None or warm:
+            try:
+                import highspy as hs
+            except ImportError:
+                if warm:
+                    raise
+        self._hs = hs
+        self._models: dict[str, list[Any]] = {}
+        self.reduced_costs: NDArray[np.float64] | None = None  # of the last optimal LP
+
+    @property
+    def warm(self) -> bool:
+        """Whether LPs with a slot reuse a HiGHS model (``highspy`` installed)."""
+        return self._hs is not None
+
+    def solve(self, slot: str | None, c: NDArray[np.float64], A: Any, b: NDArray[np.float64], lb: NDArray[np.float64],
+              ub: NDArray[np.float64], extra: Any = None, extra_b: NDArray[np.float64] | None = None
+              ) -> tuple[int, NDArray[np.float64] | None, str]:
+        """``(status, x, message)``; status as :func:`scipy.optimize.linprog` (0 optimal, 2 infeasible). ``A`` (csr)
+        is reused between calls (the working set's rows: the same object until the set grows), ``extra`` (csr) are the
+        rows that change from one LP to the next."""
+        if self._hs is not None and slot is not None:
+            out = self._solve_warm(slot, c, A, b, lb, ub, extra, extra_b)
+            if out is not None:
+                return out
+            self._models.pop(slot, None)  # anything unusual: solve from scratch, and rebuild the model next time
+        from scipy.optimize import linprog
+        from scipy.sparse import vstack
+
+        if extra is not None:
+            A = vstack([A, extra], format="csr")
+            b = np.concatenate([b, extra_b])
+        bnd = np.column_stack([np.where(np.isinf(lb), None, lb), np.where(np.isinf(ub), None, ub)])
+        res = linprog(c, A_ub=A, b_ub=b, bounds=bnd, method="highs")
+        self.reduced_costs = None
+        if res.status == 0:
+            self.reduced_costs = np.asarray(res.lower.marginals) + np.asarray(res.upper.marginals)
+        return int(res.status), (res.x if res.status == 0 else None), str(res.message)
+
+    def _solve_warm(self, slot: str, c: NDArray[np.float64], A: Any, b: NDArray[np.float64], lb: NDArray[np.float64],
+                    ub: NDArray[np.float64], extra: Any, extra_b: NDArray[np.float64] | None
+                    ) -> tuple[int, NDArray[np.float64] | None, str] | None:
+        from scipy.sparse import csr_matrix
+
+        hs = self._hs
+        E = csr_matrix((0, A.shape[1])) if extra is None else csr_matrix(extra)
+        e = np.zeros(0) if extra_b is None else np.asarray(extra_b, dtype=np.float64)
+        m = self._models.get(slot)
+        if m is None or m[1] is not A or m[2].shape != E.shape:
+            from scipy.sparse import vstack
+
+            full = vstack([A, E], format="csr")
+            full.sort_indices()
+            h = hs.Highs()
+            h.setOptionValue("output_flag", False)
+            lp = hs.HighsLp()
+            lp.num_col_, lp.num_row_ = full.shape[1], full.shape[0]
+            lp.col_cost_, lp.col_lower_, lp.col_upper_ = c, lb, ub
+            lp.row_lower_ = np.full(full.shape[0], -np.inf)
+            lp.row_upper_ = np.concatenate([b, e])
+            lp.a_matrix_.format_ = hs.MatrixFormat.kRowwise
+            lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = full.shape[1], full.shape[0]
+            lp.a_matrix_.start_, lp.a_matrix_.index_, lp.a_matrix_.value_ = full.indptr, full.indices, full.data
+            if h.passModel(lp) == hs.HighsStatus.kError:  # kWarning: entries below 1e-9 dropped, as linprog does
+                return None
+            m = [h, A, E, c.copy(), lb.copy(), ub.copy(), np.concatenate([b, e])]
+            self._models[slot] = m
+        else:
+            h, _, E0, c0, lb0, ub0, r0 = m
+            D = (E - E0).tocoo()
+            if D.nnz:  # coefficients of the extra rows that changed (or appeared, or went to 0)
+                vals = np.asarray(E[D.row, D.col]).ravel()
+                for i, j, v in zip((D.row + A.shape[0]).tolist(), D.col.tolist(), vals.tolist()):
+                    h.changeCoeff(i, j, v)
+            k = np.flatnonzero(c != c0)
+            if k.size:
+                h.changeColsCost(k.size, k.astype(np.int32), c[k])
+            k = np.flatnonzero((lb != lb0) | (ub != ub0))
+            if k.size:
+                h.changeColsBounds(k.size, k.astype(np.int32), lb[k], ub[k])
+            r = np.concatenate([b, e])
+            k = np.flatnonzero(r != r0)
+            if k.size:
+                h.changeRowsBounds(k.size, k.astype(np.int32), np.full(k.size, -np.inf), r[k])
+            m[2:] = [E, c.copy(), lb.copy(), ub.copy(), r]
+        h.run()
+        st = h.getModelStatus()
+        if st == hs.HighsModelStatus.kOptimal:
+            sol = h.getSolution()
+            self.reduced_costs = np.asarray(sol.col_dual, dtype=np.float64)
+            return 0, np.asarray(sol.col_value, dtype=np.float64), "optimal"
+        if st == hs.HighsModelStatus.kInfeasible:
+            return 2, None, "infeasible"
+        return None
+
+
 class _GroupLP:
     r"""Cutting-plane LPs over group extremes.
 
@@ -459,12 +572,19 @@ class _GroupLP:
 
     def __init__(self, X: NDArray[np.float64], c: NDArray[np.float64], starts: NDArray[np.int64], *,
                  gaps: NDArray[np.float64] | None = None, shift: NDArray[np.float64] | None = None,
-                 base: float = 0.0) -> None:
+                 base: float = 0.0, warm: bool | None = None) -> None:
         if (gaps is None) == (shift is None):
             raise ValueError("_GroupLP: give either gaps (K x K) or shift (K) with base")
         if shift is not None and not base >= 0.0:
             raise ValueError("_GroupLP: adjacent ordering rows need base >= 0")
         self.X, self.c, self.starts = X, c, starts
+        self.x_max = float(np.max(np.abs(X), initial=0.0))
+        from scipy.sparse import csr_matrix
+
+        # Products with X in the cutting-plane loop go through scipy.sparse, not BLAS: OpenBLAS's threads, woken by a
+        # product of a few hundred rows, spin afterwards and took the solver's core on a loaded machine (3x slower).
+        self._Xs = csr_matrix(X)
+        self._absXs = abs(self._Xs)
         self.gaps, self.shift, self.base = gaps, shift, float(base)
         self.N, self.p = X.shape
         self.K = starts.size - 1
@@ -495,6 +615,8 @@ class _GroupLP:
             self.gap_max = float(np.max(np.abs(gaps), initial=0.0))
         self._order_rows = self._ordering_rows()
         self._rows_cache: tuple[int, bool, Any] | None = None
+        self.solver = _LPSolver(_WARM if warm is None else warm)
+        self.reduced_costs = np.zeros(self.n_var)  # of the last solve's optimum (full layout)
         self._seed()
 
     @staticmethod
@@ -589,7 +711,9 @@ class _GroupLP:
             c_parts.append(np.tile(np.arange(p), rows.size))
             v_parts.append((sign * self.X[m]).ravel())
             rhs[rows] -= sign * self.c[m]
-        A = coo_matrix((np.concatenate(v_parts), (np.concatenate(r_parts), np.concatenate(c_parts))),
+        vals = np.concatenate(v_parts)
+        nz = vals != 0.0  # sparse features stay sparse
+        A = coo_matrix((vals[nz], (np.concatenate(r_parts)[nz], np.concatenate(c_parts)[nz])),
                        shape=(n, self.keep.size)).tocsr()
         return A, rhs, rhs_h
 
@@ -624,7 +748,7 @@ class _GroupLP:
         return A, b
 
     def _violated(self, w: NDArray[np.float64], homogeneous: bool, tol: float) -> bool:
-        r = self.X @ w if homogeneous else self.c + self.X @ w
+        r = self._Xs @ w if homogeneous else self.c + self._Xs @ w
         lo = np.minimum.reduceat(r, self.starts[:-1])
         hi = np.maximum.reduceat(r, self.starts[:-1])
         need = 0.0 if homogeneous else self.pair_gap
@@ -636,36 +760,42 @@ class _GroupLP:
     # -- solve
     def solve(self, objective: NDArray[np.float64], bounds: list[tuple[float | None, float | None]], *,
               homogeneous: bool, extra_A: NDArray[np.float64] | Any | None = None,
-              extra_b: NDArray[np.float64] | None = None) -> NDArray[np.float64] | None:
+              extra_b: NDArray[np.float64] | None = None, slot: str | None = None) -> NDArray[np.float64] | None:
         """Minimise ``objective @ z``; ``None`` if infeasible. ``bounds`` cover all ``n_var`` variables; ``extra_A``
-        (dense or sparse) adds rows ``extra_A @ z <= extra_b``."""
-        from scipy.optimize import linprog
-        from scipy.sparse import csr_matrix, vstack
+        (dense or sparse) adds rows ``extra_A @ z <= extra_b``. LPs of one ``slot`` (same kind, differing in a few
+        entries) warm-start one another (:class:`_LPSolver`)."""
+        from scipy.sparse import csr_matrix
 
         # callers never weight the bound variables of single-trajectory groups (they are not LP columns)
         extra = None if extra_A is None else csr_matrix(extra_A)[:, self.keep]
-        obj = np.asarray(objective)[self.keep]
-        bnd = [bounds[i] for i in self.keep]
+        obj = np.asarray(objective, dtype=np.float64)[self.keep]
+        lb = np.array([-np.inf if bounds[i][0] is None else bounds[i][0] for i in self.keep], dtype=np.float64)
+        ub = np.array([np.inf if bounds[i][1] is None else bounds[i][1] for i in self.keep], dtype=np.float64)
         while True:
             A, b = self._rows(homogeneous)
-            if extra is not None:
-                A = vstack([A, extra], format="csr")
-                b = np.concatenate([b, extra_b])
-            res = linprog(obj, A_ub=A, b_ub=b, bounds=bnd, method="highs")
+            status, z, message = self.solver.solve(slot, obj, A, b, lb, ub, extra, extra_b)
             self.n_lp += 1
-            if res.status == 2:
+            if status == 2:
                 return None  # a relaxation is infeasible, hence the full problem too
-            if res.status != 0:
-                raise RuntimeError(f"identify: LP solver failed ({res.message})")
-            w = res.x[:self.p]
-            scale = 1.0 + float(np.max(np.abs(w), initial=0.0)) * float(np.max(np.abs(self.X), initial=0.0))
-            if not homogeneous:
-                scale += float(np.max(np.abs(self.c), initial=0.0)) + self.gap_max
-            if not self._violated(w, homogeneous, 1e-7 * scale):
+            if status != 0 or z is None:
+                raise RuntimeError(f"identify: LP solver failed ({message})")
+            w = z[:self.p]
+            if homogeneous:  # |w| <= 1 (the recession box)
+                tol = 1e-7 * (1.0 + float(np.max(np.abs(w), initial=0.0)) * self.x_max)
+            else:
+                # The solver's tolerance on the data's scale, plus the rounding of returns c + X w: where a penalty sits
+                # at the box (+-1e10, a companion of an unbounded one) 1e-7 |w| would let violations of 1e3 pass and
+                # stop the cutting planes short of the optimum (a wrong end of S_alpha).
+                big = float(np.max(self._absXs @ np.abs(w), initial=0.0)) if self.p else 0.0
+                tol = 1e-7 * (1.0 + float(np.max(np.abs(self.c), initial=0.0)) + self.gap_max) + 1e-13 * big
+            if not self._violated(w, homogeneous, tol):
                 x = np.zeros(self.n_var)
-                x[self.keep] = res.x
+                x[self.keep] = z
+                self.reduced_costs = np.zeros(self.n_var)
+                if self.solver.reduced_costs is not None:
+                    self.reduced_costs[self.keep] = self.solver.reduced_costs
                 one = np.flatnonzero(self.single)
-                ret = self.X[self.member[one]] @ w + (0.0 if homogeneous else self.c[self.member[one]])
+                ret = self._Xs[self.member[one]] @ w + (0.0 if homogeneous else self.c[self.member[one]])
                 x[self.p + one] = ret
                 x[self.p + self.K + one] = ret
                 return x
@@ -821,18 +951,21 @@ def threshold_interval(dataset: Dataset, constraint: AxisHalfspace, *, name: str
 
 
 # ---------------------------------------------------------------------------------------------- main
-_PROGRESS_DELAY_S = 3.0
+_PROGRESS_DELAY_S = 2.0
 
 
 class _Progress:
-    """A tqdm bar on stderr that appears only after :data:`_PROGRESS_DELAY_S` seconds (or nothing)."""
+    """A tqdm bar on stderr (or nothing) that appears once the analysis started at ``t0`` (``time.perf_counter``)
+    has run :data:`_PROGRESS_DELAY_S` seconds, so a quick analysis prints nothing and a long one shows each phase."""
 
-    def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature") -> None:
+    def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature",
+                 t0: float | None = None) -> None:
         self.bar = None
         if enabled:
             from tqdm import tqdm
 
-            self.bar = tqdm(desc=what, total=total, unit=unit, delay=_PROGRESS_DELAY_S, leave=False,
+            waited = 0.0 if t0 is None else time.perf_counter() - t0
+            self.bar = tqdm(desc=what, total=total, unit=unit, delay=max(0.0, _PROGRESS_DELAY_S - waited), leave=False,
                             dynamic_ncols=True)
 
     def step(self) -> None:
@@ -842,6 +975,14 @@ class _Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+def _shifted(F: NDArray[np.float64], spread: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Columns of ``F`` over their ``spread``, shifted by 0 where the column's range contains 0 and by the column's
+    minimum otherwise: every entry in [-1, 1], and a zero of ``F`` stays an exact zero."""
+    lo, hi = F.min(axis=0), F.max(axis=0)
+    shift = np.where((lo <= 0.0) & (hi >= 0.0), 0.0, lo)
+    return np.ascontiguousarray((F - shift) / spread)
 
 
 _FLAT_PARTNERS_SHOWN = 20  # partners listed per affinely dependent feature (with more features than trajectories
@@ -864,7 +1005,11 @@ def _flat_partners(X: NDArray[np.float64]) -> dict[int, tuple[list[int], bool]]:
         # costs nothing and the QR is one O(N p^2) pass without forming Q.
         _, sv, vt = np.linalg.svd(np.linalg.qr(X, mode="r"))
     else:
-        _, sv, vt = np.linalg.svd(X, full_matrices=False)  # the other p - N singular values are 0
+        # X^T = Q R (Householder, p x N), R^T = U S W^T, so X = U S (Q W)^T: the thin SVD from an N x N one, 20-50x
+        # faster than LAPACK's on the wide matrix when OpenBLAS shares a loaded machine; the other p - N values are 0.
+        q, r = np.linalg.qr(X.T)
+        _, sv, wt = np.linalg.svd(r.T)
+        vt = wt @ q.T
         sv = np.concatenate([sv, np.zeros(p - N)])
     tol = sv.max() * max(X.shape) * np.finfo(float).eps
     rank = int(np.sum(sv[:vt.shape[0]] > tol))
@@ -922,7 +1067,7 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
     while rest.any():
         obj = np.zeros(lp.n_var)
         obj[:p] = rest.astype(np.float64)  # minimise sum_R delta_j = maximise sum_R -delta_j
-        x = lp.solve(obj, bnd, homogeneous=True)
+        x = lp.solve(obj, bnd, homogeneous=True, slot="support")
         tick.step()
         if x is None or -float(obj[:p] @ x[:p]) <= _T_MIN:
             break
@@ -934,7 +1079,8 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
     return sorted(found)
 
 
-def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64], neg: bool, tick: _Progress) -> bool:
+def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64], neg: bool,
+               tick: _Progress) -> NDArray[np.float64] | None:
     r"""Whether some direction of the recession cone improves the ranking (is not flat): :math:`\max \bar g^\top
     \delta > T_{min}` over the cone within the per-feature LPs' box.
 
@@ -942,13 +1088,15 @@ def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64],
     the threshold no penalty is unbounded and none of them needs solving (exact, not a heuristic). That is the
     usual case for rankings no direction orders, e.g. noisy ones, where the cone holds only flat directions (an
     affinely dependent set such as one-hot cells, whose fractions sum to 1), which move every feature they touch.
+
+    Returns the maximiser (a direction of the cone in that box) when it improves, else ``None``.
     """
     obj = np.zeros(lp.n_var)
     obj[:p] = -gbar
     bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
     x = lp.solve(obj, bnd, homogeneous=True)
     tick.step()
-    return x is not None and float(gbar @ x[:p]) > _T_MIN
+    return x[:p] if x is not None and float(gbar @ x[:p]) > _T_MIN else None
 
 
 def identify(
@@ -1015,13 +1163,17 @@ def identify(
     :math:`w_p \le 0`, the features some recession direction moves; whether any direction improves the ranking).
     Skipped: the recession LPs when no direction improves the ranking (then no penalty is unbounded), the upper end
     of :math:`w_{p,j} \le 0` when a point of :math:`S_\alpha` found so far has :math:`w_{p,j} = 0`, every end when
-    the ranking is not separable. Each LP is over
+    the ranking is not separable, and the recession LP of a feature whose best improvement :math:`t^*` a direction
+    found so far already attains (usually all but a few dozen). Each LP is over
     ``p + 2K + 1 (+ p)`` variables (less two per single-trajectory group) and the rows of a small working set of
     extreme trajectories (cutting planes, exact at termination) plus the group-ordering rows: K - 1 for additive
     margins (zeros, gaps), K(K-1)/2 for a general matrix; every round checks all ``N`` trajectories in
-    :math:`O(Np + K)`. Memory is O(N p + K) for additive margins: a total ranking of 20,000 trajectories takes a
-    few seconds and tens of MB (``tests/analysis/test_identify.py``). With many features the per-feature LPs
-    dominate, each :math:`O(N p)` in size: ``benchmarks/reports/identify.md``.
+    :math:`O(Np + K)`. Features enter the LPs shifted, not centred, so a sparse feature (an indicator, a cell
+    fraction) keeps its zeros. With ``highspy`` installed (``pip install "pbicrl[lp]"``) the LPs of one kind are
+    warm-started from the last basis; else each is solved by :func:`scipy.optimize.linprog`. Memory is O(N p + K)
+    for additive margins: a total ranking of 20,000 trajectories takes a few seconds and tens of MB
+    (``tests/analysis/test_identify.py``). With many features the per-feature LPs dominate: 1,000 and 10,000 one-hot
+    cell features of 300 trajectories take tens of seconds (``benchmarks/reports/identify.md``).
     """
     t0 = time.perf_counter()
     if not isinstance(dataset, Dataset):
@@ -1074,12 +1226,18 @@ def identify(
     # one tolerance fits all features; weights map back by w_j = w~_j / spread_j.
     X = (F[order][:, free] - F[:, free].mean(axis=0)) / s if p else np.zeros((F.shape[0], 0))
     X = np.ascontiguousarray(X)
+    # The LPs see each column shifted by a constant instead of centred: a shift moves every return, and with it the
+    # group bounds u, v, by the same amount, so every LP has the same penalties feasible and the same optimal value.
+    # Shifting by 0 where the column takes 0 (else by its minimum) keeps |X| <= 1, so one tolerance still fits all,
+    # and keeps sparse features (indicators, cell fractions) sparse: centred, a cell 3 of 300 trajectories visit has
+    # 300 non-zeros in every LP row block, shifted it has 3.
+    X_lp = _shifted(F[order][:, free], s) if p else X
     c = F[order] @ wn
     L = math.log((1.0 - alpha) / alpha)
     if mar.offsets is not None:  # additive margins (zeros, gaps): O(K) ordering rows, nothing K x K
-        lp = _GroupLP(X, c, starts, shift=mar.offsets / beta, base=L / beta)
+        lp = _GroupLP(X_lp, c, starts, shift=mar.offsets / beta, base=L / beta)
     else:  # a general matrix, given as such
-        lp = _GroupLP(X, c, starts, gaps=(mar.matrix + L) / beta)
+        lp = _GroupLP(X_lp, c, starts, gaps=(mar.matrix + L) / beta)
     from scipy.sparse import csr_matrix
 
     nv, it, ia = lp.n_var, p + 2 * K, p + 2 * K + 1
@@ -1087,9 +1245,35 @@ def identify(
 
     free_uv: list[tuple[float | None, float | None]] = [(None, None)] * (2 * K)  # group bounds u, v
 
-    def w_bounds() -> list[tuple[float | None, float | None]]:
-        b: list[tuple[float | None, float | None]] = [(-_BIG, 0.0 if neg else _BIG)] * p
+    def w_bounds(box: float = _BIG) -> list[tuple[float | None, float | None]]:
+        b: list[tuple[float | None, float | None]] = [(-box, 0.0 if neg else box)] * p
         return b + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
+
+    def end(obj: NDArray[np.float64], a: int) -> NDArray[np.float64]:
+        """A maximiser of ``-obj @ z`` over S_alpha, accurate where companions of unbounded penalties could run to
+        the box: a vertex at +-1e10 loses digits (the returns are sums of terms of 1e10; HiGHS's tolerances apply to
+        them). The optimal value v(B) under a box B is concave, non-decreasing and piecewise linear in B, and finite
+        ends are attained: so where no penalty sits at a box of 1e5 the box is inactive and the point optimal; where
+        v(1e7) = v(1e5), v is flat from there on, v(1e5) is the end. Else (an end at infinity): the box of 1e10.
+        A penalty at the box whose reduced cost is 0 does not bind (the point with the same duals is optimal without
+        that bound, the KKT conditions hold), so where all of them are 0 the first box's point is optimal already."""
+        prev = None
+        for box in _END_BOXES:
+            x = lp.solve(obj, w_bounds(box), homogeneous=False, slot=f"ends {box:g}")
+            if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
+                raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+            at_box = np.abs(x[:p]) >= 0.5 * box
+            if not np.any(at_box):
+                return x
+            if abs(x[a]) < 0.5 * box and np.all(np.abs(lp.reduced_costs[:p][at_box]) <= 1e-12):
+                return x
+            if prev is not None and abs(x[a] - prev[a]) <= 1e-9 * (1.0 + abs(prev[a])):
+                return prev
+            prev = x
+        x = lp.solve(obj, w_bounds(), homogeneous=False, slot="ends")
+        if x is None:
+            raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+        return x
 
     # ---- flat directions (affine dependence among free candidates): the likelihood is constant along them
     flat_groups = {free[a]: ([free[b] for b in bs], more) for a, (bs, more) in _flat_partners(X).items()}
@@ -1097,28 +1281,61 @@ def identify(
     # ---- recession analysis (independent of alpha, beta, margins)
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
-    tick = _Progress(progress, "identify: unbounded penalties", unit="LP")
+    tick = _Progress(progress, "identify: unbounded penalties", unit="LP", t0=t0)
     movable = _recession_support(lp, p, K, free_uv, tick) if neg else list(range(p))
-    if movable and not _improving(lp, p, free_uv, gbar, neg, tick):
+    best_dir = _improving(lp, p, free_uv, gbar, neg, tick) if movable else None
+    if best_dir is None:
         movable = []
     tick.close()
-    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable))
+    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable), t0=t0)
+    signs = (-1.0,) if neg else (-1.0, 1.0)
+    # The max-t LP of feature a, sign s: t* = max min(s delta_a, gbar@delta) over the cone in the box, t <= 1, so
+    # t* <= t_up = min(1, max gbar@delta) (the maximum is _improving's). Every direction D found so far (in the cone and
+    # the box) gives t* >= min(s D_a, gbar@D, 1); where that reaches t_up, t* is known and the LP is not solved. The
+    # directions HiGHS returns have most coordinates at -1 and gbar@D >= 1, so after a few dozen LPs nearly every
+    # feature is settled that way (exact: the same t*, up to the solver's tolerance).
+    t_up = min(1.0, float(gbar @ best_dir)) if best_dir is not None else 0.0
+    lower = {sg: np.full(p, -np.inf) for sg in signs}
+    lower_at = {sg: np.zeros(p, dtype=np.int64) for sg in signs}
+    found: list[NDArray[np.float64]] = []
+
+    def add_direction(D: NDArray[np.float64]) -> None:
+        g = min(1.0, float(gbar @ D))
+        if g <= _T_MIN:
+            return
+        found.append(D)
+        for sg in signs:
+            lb = np.minimum(sg * D, g)
+            better = lb > lower[sg]
+            lower[sg][better] = lb[better]
+            lower_at[sg][better] = len(found) - 1
+
+    if best_dir is not None:
+        add_direction(best_dir)
     for a in movable:
         j = free[a]
-        for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
-            # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
-            obj = np.zeros(nv)
-            obj[it] = -1.0
-            bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 1.0)] + [(0.0, 0.0)] * p
-            extra = np.zeros((2, nv))
-            extra[0, a], extra[0, it] = -sgn, 1.0     # t - sgn*delta_j <= 0
-            extra[1, :p], extra[1, it] = -gbar, 1.0   # t - gbar@delta <= 0 (strict improvement, not flat)
-            x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2))
-            if x is None or x[it] <= _T_MIN:
-                continue
+        for sgn in signs:
+            if lower[sgn][a] > _T_MIN and lower[sgn][a] >= t_up - 1e-9:
+                t_star, d0 = float(lower[sgn][a]), found[lower_at[sgn][a]]
+            else:
+                # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
+                obj = np.zeros(nv)
+                obj[it] = -1.0
+                bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 1.0)] + [(0.0, 0.0)] * p
+                extra = np.zeros((2, nv))
+                extra[0, a], extra[0, it] = -sgn, 1.0     # t - sgn*delta_j <= 0
+                extra[1, :p], extra[1, it] = -gbar, 1.0   # t - gbar@delta <= 0 (strict improvement, not flat)
+                x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2), slot="recession")
+                if x is None or x[it] <= _T_MIN:
+                    continue
+                add_direction(x[:p].copy())
+                t_star, d0 = float(x[it]), x[:p]
             # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others.
-            d0 = x[:p] / abs(x[a])
-            eps = 0.5 * float(gbar @ d0)
+            d0 = d0 / abs(d0[a])
+            # Half the best improvement t* (the LP's optimal value), not half that of the vertex HiGHS returned
+            # (gbar @ d0 >= t*): which optimal vertex comes back depends on the solver's path (on a constant shift of a
+            # column, a warm start), and the companions and coefficients of the sparsest direction changed with it.
+            eps = 0.5 * t_star
             obj = np.zeros(nv)
             bnd = [((None, 0.0) if neg else (None, None))] * p + free_uv + [(0.0, 0.0)] + [(0.0, None)] * p
             bnd[a] = (sgn, sgn)
@@ -1137,7 +1354,7 @@ def identify(
                 extra = csr_matrix((vv, (rr, cc)), shape=(2 * p + 1, nv))
             rhs = np.zeros(extra.shape[0])
             rhs[0] = -eps                              # gbar@delta >= eps
-            y = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=rhs)
+            y = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=rhs, slot="sparsest")
             delta = (y[:p] if y is not None else d0) / s
             recess[j][int(sgn)] = delta / np.abs(delta).max()
         tick.step()
@@ -1148,7 +1365,7 @@ def identify(
     separable = x0 is not None
     rng: dict[int, tuple[float, float]] = {}
     tick.close()
-    tick = _Progress(progress and separable and p > 0, "identify: separation scales", total=p)
+    tick = _Progress(progress and separable and p > 0, "identify: separation scales", total=p, t0=t0)
     if separable:
         # A point of S_alpha with w_j = 0 settles the upper end of w_j <= 0 (it is 0) without an LP; the vertices
         # HiGHS returns have few non-zero penalties, so with many features most ends are settled by the points
@@ -1166,9 +1383,7 @@ def identify(
                     continue
                 obj = np.zeros(nv)
                 obj[a] = -sgn
-                x = lp.solve(obj, w_bounds(), homogeneous=False)
-                if x is None:  # cannot happen: the feasibility LP succeeded on a subset of these rows
-                    raise RuntimeError("identify: LP solver reported an infeasible end of a feasible set")
+                x = end(obj, a)
                 if neg:
                     at_zero |= x[:p] == 0.0
                 ends.append(sgn * math.inf if abs(x[a]) >= 0.5 * _BIG else float(x[a]) / s[a])
