@@ -233,3 +233,16 @@ def test_without_highspy_every_lp_goes_to_scipy_with_the_same_answers(monkeypatc
                 finite += math.isfinite(y)
                 assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-7, abs=1e-9)
     assert finite > 0
+
+
+def test_the_warm_solver_prints_nothing(capfd):
+    """HiGHS >= 1.16 prints a licence banner on stdout when a model object is made, before any option can be
+    set; identify must not (it would corrupt `pbicrl identify --json` and the labelling page's child pipe)."""
+    pytest.importorskip("highspy")
+    ds, kw = _problem(53)
+    capfd.readouterr()
+    solver = identify_module._LPSolver()
+    assert solver.warm
+    identify(ds, **kw)
+    out, err = capfd.readouterr()
+    assert "HiGHS" not in out and "HiGHS" not in err, out + err

@@ -52,6 +52,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal, Mapping, Sequence
@@ -432,6 +434,32 @@ def _finite_or_none(v: float) -> float | None:
 
 
 # ---------------------------------------------------------------------------------------------- LPs
+def _quiet_highs(hs: Any) -> Any:
+    """``hs.Highs()`` with its output off. HiGHS >= 1.16 prints a banner on stdout when the object is made,
+    before any option can be set: that would corrupt a command's ``--json`` output (and a child process's pipe),
+    so the process's file descriptor 1 points at ``/dev/null`` while it is made (C stdio flushed before it
+    returns)."""
+    import ctypes
+
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+            try:
+                h = hs.Highs()
+                h.setOptionValue("output_flag", False)
+            finally:
+                try:
+                    ctypes.CDLL(None).fflush(None)
+                except (OSError, AttributeError):  # no C library by that name: nothing buffered to lose
+                    pass
+                os.dup2(saved, 1)
+    finally:
+        os.close(saved)
+    return h
+
+
 class _LPSolver:
     """``min c @ x`` s.t. ``A @ x <= b``, ``lb <= x <= ub`` with HiGHS.
 
@@ -499,8 +527,7 @@ class _LPSolver:
 
             full = vstack([A, E], format="csr")
             full.sort_indices()
-            h = hs.Highs()
-            h.setOptionValue("output_flag", False)
+            h = _quiet_highs(hs)
             lp = hs.HighsLp()
             lp.num_col_, lp.num_row_ = full.shape[1], full.shape[0]
             lp.col_cost_, lp.col_lower_, lp.col_upper_ = c, lb, ub
