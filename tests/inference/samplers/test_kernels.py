@@ -485,3 +485,35 @@ def test_log_moves_are_off_for_two_sided_priors_and_other_samplers(ranked_proble
     assert not build_kernel(lik, method="bpl")._moves.log_sign.any()
     assert not build_kernel(lik, log_moves=False)._moves.log_sign.any()
     assert build_kernel(lik)._moves.log_sign.tolist() == [-1] * lik.n_features
+
+
+def test_pbicrl_chains_start_their_parameters_near_the_identified_interval():
+    """With identify's interval for a parameter, the pbicrl sampler starts it in the interval widened by twice its
+    width each side (a chain started at a wall beyond every state never left it, Blocked Ant); the paper sampler
+    and a run without an identification start anywhere in the box, with the same draws as before."""
+    from pbicrl.analysis.identify import identify
+    from pbicrl.inference.constraints import AxisHalfspace, ConstraintSet
+    from pbicrl.inference.samplers.driver import _parameter_ranges
+    from pbicrl.inference.synthetic import make_wall_problem
+
+    ds = make_wall_problem(15, seed=0).dataset
+    lik = PreferenceLikelihood.from_dataset(ds, likelihood="grouped")
+    cs = ConstraintSet((AxisHalfspace(0, direction=">=", name="wall"),), ds)
+    idf = identify(ds, constraints=cs)
+    ranges = _parameter_ranges(idf, cs)
+    (rl, rh), = ranges
+    assert np.isfinite(rl) and np.isfinite(rh) and rl < rh
+    np.testing.assert_allclose(_parameter_ranges(idf.to_dict(), cs), ranges)  # the summary.json form: the same
+    lo, hi = cs.bounds[0]
+    w = rh - rl
+    assert (rh + 2 * w - max(lo, rl - 2 * w)) < 0.9 * (hi - lo)  # a narrower start than the box: the test can fail
+    k = build_kernel(lik, constraints=cs, parameter_ranges=ranges)
+    starts = np.array([k.init(seed).parameters[0] for seed in range(40)])
+    assert np.all(starts >= max(lo, rl - 2 * w)) and np.all(starts <= min(hi, rh + 2 * w))
+    plain = build_kernel(lik, constraints=cs)
+    paper = build_kernel(lik, constraints=cs, parameter_ranges=ranges, sampler="paper")
+    paper_plain = build_kernel(lik, constraints=cs, sampler="paper")
+    for seed in range(5):
+        assert paper.init(seed).parameters[0] == paper_plain.init(seed).parameters[0]
+    wide = np.array([plain.init(seed).parameters[0] for seed in range(40)])
+    assert wide.min() < max(lo, rl - 2 * w) or wide.max() > min(hi, rh + 2 * w)

@@ -569,7 +569,7 @@ def sample(
     n_chains, n_jobs = chains, jobs
     names = _feature_names(likelihood, feature_names)
     kernel = build_kernel(likelihood, settings, constraints=constraints, min_penalty=_min_penalty(identified),
-                          **overrides)
+                          parameter_ranges=_parameter_ranges(identified, constraints), **overrides)
     if int(n_chains) < 1:
         raise ValueError(f"chains: need at least 1 chain, got {n_chains}")
     seeds = np.random.SeedSequence(int(seed)).spawn(int(n_chains))
@@ -601,6 +601,27 @@ def sample(
         runtime = time.perf_counter() - t0
     return Posterior.from_chains(results, kernel=kernel, seed=int(seed), runtime_s=runtime, feature_names=names,
                                  identified=identified)
+
+
+def _parameter_ranges(identified: Any, constraints: Any) -> list[tuple[float, float]] | None:
+    """The identified interval of every constraint parameter (object or ``summary.json`` dict), in the
+    constraints' parameter order; NaN ends where none."""
+    if identified is None or constraints is None:
+        return None
+    names = list(constraints.param_names)
+    got: dict[str, Any] = {}
+    params = getattr(identified, "parameters", None) if not isinstance(identified, dict) else identified.get("parameters")
+    if isinstance(params, dict):
+        got = {k: v for k, v in params.items() if isinstance(v, (list, tuple)) and len(v) == 2}
+    elif params is not None:
+        got = {p.name: (p.low, p.high) for p in params}
+    if not got:
+        return None
+
+    def num(x: Any) -> float:
+        return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
+
+    return [(num(got[n][0]), num(got[n][1])) if n in got else (float("nan"), float("nan")) for n in names]
 
 
 def _min_penalty(identified: Any) -> list[float] | None:
