@@ -51,6 +51,7 @@ Threshold interval of an axis half-space
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import sys
@@ -434,13 +435,22 @@ def _finite_or_none(v: float) -> float | None:
 
 
 # ---------------------------------------------------------------------------------------------- LPs
+@functools.lru_cache(maxsize=1)
+def _c_fflush() -> Any:
+    """The C library's ``fflush`` (opened once: a model is made per LP slot and working set), or None."""
+    import ctypes
+
+    try:
+        return ctypes.CDLL(None).fflush
+    except (OSError, AttributeError):  # no C library by that name: nothing buffered to lose
+        return None
+
+
 def _quiet_highs(hs: Any) -> Any:
     """``hs.Highs()`` with its output off. HiGHS >= 1.16 prints a banner on stdout when the object is made,
     before any option can be set: that would corrupt a command's ``--json`` output (and a child process's pipe),
     so the process's file descriptor 1 points at ``/dev/null`` while it is made (C stdio flushed before it
     returns)."""
-    import ctypes
-
     sys.stdout.flush()
     saved = os.dup(1)
     try:
@@ -450,10 +460,9 @@ def _quiet_highs(hs: Any) -> Any:
                 h = hs.Highs()
                 h.setOptionValue("output_flag", False)
             finally:
-                try:
-                    ctypes.CDLL(None).fflush(None)
-                except (OSError, AttributeError):  # no C library by that name: nothing buffered to lose
-                    pass
+                flush = _c_fflush()
+                if flush is not None:
+                    flush(None)
                 os.dup2(saved, 1)
     finally:
         os.close(saved)

@@ -619,7 +619,7 @@ def _parameter_ranges(identified: Any, constraints: Any) -> list[tuple[float, fl
         return None
 
     def num(x: Any) -> float:
-        return float(x) if isinstance(x, (int, float)) and x is not None else float("nan")
+        return float(x) if isinstance(x, (int, float)) else float("nan")  # None: no end
 
     return [(num(got[n][0]), num(got[n][1])) if n in got else (float("nan"), float("nan")) for n in names]
 
