@@ -138,6 +138,7 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     """
     from pbicrl._atomic import write_json, write_text
     from pbicrl.envs.icrl_benchmark import ICRL_TASKS, icrl_task
+    from pbicrl.experiments.icrl_benchmark import ICL_TASKS
 
     root = Path(runs)
     if not root.is_dir():
@@ -177,8 +178,10 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
                     agg["icl_location"] = _mean_sd(found) if found else None
                     agg["icl_location_seeds"] = [len(found), len(locs)]
             else:
-                results["missing"].append({"task": t, "method": m,
-                                           "why": "no run directory" if not per else "no finished seed"})
+                why = "no run directory" if not per else "no finished seed"
+                if m == "icl" and not per and t not in ICL_TASKS:
+                    why = f"not run: the icl method has {' and '.join(sorted(ICL_TASKS))} only"
+                results["missing"].append({"task": t, "method": m, "why": why})
             rows[m] = agg
         results["tasks"][t] = rows
 
