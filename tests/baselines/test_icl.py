@@ -272,3 +272,60 @@ def test_reproduce_all_excludes_icl(monkeypatch, tmp_path):
         monkeypatch.setitem(rep.EXPERIMENTS, name, lambda ctx, n=name: called.append(n) or tmp_path)
     rep.reproduce("all", out=tmp_path, progress=False)
     assert "icl" not in called and "grid" in called
+
+
+# --------------------------------------------------------------------------------------------- ICRL benchmark tasks
+@pytest.mark.parametrize("name, task", [("icrl_halfcheetah", "halfcheetah"), ("icrl_ant", "ant")])
+def test_icrl_envs_truth_coordinate_and_hidden_cost(name, task):
+    pytest.importorskip("mujoco")
+    from pbicrl.baselines.icl import icl_env
+    from pbicrl.experiments.icrl_benchmark import make_task_env
+
+    spec = icl_env(name)
+    assert spec.side == "behind" and spec.true_location == -3.0
+    # the benchmark's strict indicator on the post-step x: x < -3 violates, x = -3 does not
+    assert spec.true_indicator(np.array([-3.5, -3.0001, -3.0, -2.9, 0.0, 8.0])).tolist() == [1, 1, 0, 0, 0, 0]
+    assert spec.grid[0, 0] == -6.0 and spec.grid[-1, 0] == 0.0 and spec.true_indicator(spec.grid).mean() == pytest.approx(0.5, abs=0.01)
+    # a hand-set state: the root moved behind the wall; the coordinate is the post-step obs[0], the cost is hidden
+    for x0, violates in ((-5.0, 1.0), (2.0, 0.0)):
+        env, ref = spec.make(), make_task_env(task)
+        try:
+            for e in (env, ref):
+                e.reset(seed=0)
+                u = e.unwrapped
+                qpos = u.data.qpos.copy()
+                qpos[0] = x0
+                u.set_state(qpos, np.zeros_like(u.data.qvel))
+            a = np.zeros(env.action_space.shape)
+            obs, r, _, _, info = env.step(a)
+            obs_ref, r_ref, _, _, info_ref = ref.step(a)
+        finally:
+            env.close()
+            ref.close()
+        c = spec.coord(obs, info)
+        assert c.shape == (1,) and c[0] == obs[0] and abs(c[0] - x0) < 0.1
+        assert spec.true_indicator(c)[0] == violates == info_ref["cost"]
+        assert "cost" not in info and r == r_ref  # the learner gets the nominal reward only, no true cost
+    # the budgets are the robot's, the expert the good group of the shipped dataset (which never crosses)
+    assert icl_preset("default", name).to_dict() == icl_preset("default", task).to_dict()
+    expert = expert_coordinates(name, group=1, n=None)
+    assert len(expert) == 100 and all(t.shape[1] == 1 for t in expert)
+    assert max(spec.true_indicator(t).max() for t in expert) == 0.0
+
+
+def test_location_of_a_wall_behind_is_scanned_down_from_the_demonstrations():
+    from pbicrl.baselines.icl import icl_env
+    from pbicrl.baselines.icl.run import _location
+
+    pytest.importorskip("mujoco")
+    spec = icl_env("icrl_halfcheetah")
+    net = ConstraintNet(1, (1,), [0.0], [1.0])
+    with torch.no_grad():  # c(x) >= 0.5 exactly where x <= -3.21: relu(-x - 3.2) * 100 - 1 >= 0
+        net.mlp[0].weight.fill_(-1.0)
+        net.mlp[0].bias.fill_(-3.2)
+        net.mlp[2].weight.fill_(100.0)
+        net.mlp[2].bias.fill_(-1.0)
+    assert net.numpy(np.array([-3.3, -3.0, 5.0])).round(2).tolist() == [1.0, 0.27, 0.27]
+    assert _location(net, spec, xmin=-2.77) == pytest.approx(-3.21, abs=0.02)
+    assert _location(net, spec, xmin=-4.0) == -4.0  # already costed where the demonstrations are
+    assert _location(ConstraintNet(1, (8,), [0.0], [1.0]), spec, xmin=-2.77) is None  # nowhere

@@ -258,3 +258,58 @@ def test_checkpoint_policy_rollouts_and_a_ranked_dataset(tmp_path):
         demonstrations_dataset("swimmer", {1: a})
     with pytest.raises(ValueError, match=r"obs: expected shape \(10,\)"):
         pol(np.zeros(3))
+
+
+def test_icl_method_resumes_and_its_run_is_reported(tmp_path):
+    """A smoke-sized ICL seed on Blocked Half-Cheetah's good demonstrations: stopped after its first update,
+    resumed to the end, evaluated as the other methods are, and read by the report."""
+    from pbicrl.experiments.icrl_benchmark import icl_config
+    from pbicrl.experiments.icrl_report import build_report
+
+    small = {"ppo": {"n_envs": 2}, "policy_episodes": 1, "eval_episodes": 1}
+    cfg = icl_config("halfcheetah", 3072, "smoke", small)  # smoke: 2 rounds; scaled to 2048 + 1024 steps
+    assert (cfg.rounds, cfg.first_round_steps, cfg.round_steps, cfg.total_steps) == (2, 2048, 1024, 3072)
+    assert icl_config("ant", 2_500_000).to_dict() == icl_config("ant", 2_500_000, "default").to_dict()
+    kw = dict(icl_budget="smoke", config_overrides=small, eval_episodes=1, log=None)
+    run = train_policy("halfcheetah", "icl", 0, tmp_path, 3072, max_seconds=0.0, **kw)  # stops after one update
+    assert run == tmp_path / "halfcheetah" / "icl" / "seed0"
+    assert not (run / "done.json").exists() and json.loads((run / "budget.json").read_text())["status"] == "interrupted"
+    assert json.loads((run / "progress.json").read_text())["steps"] == 512
+    with open(run / "curve.jsonl", "a") as fh:  # logged after the checkpoint by a run that then died: cut on resume
+        fh.write('{"episode": 99, "steps": 999999}\n')
+    train_policy("halfcheetah", "icl", 0, tmp_path, 3072, **kw)
+    done = json.loads((run / "done.json").read_text())
+    assert done["steps"] == 3072 and done["rounds"] == 2 and done["true_location"] == -3.0
+    curve = _lines(run / "curve.jsonl")  # after the resume (fresh resets) 2 environments x 1280 steps: 1 episode each
+    assert [r["episode"] for r in curve] == [1, 2] and all(512 < r["steps"] <= 3072 and r["length"] == 1000
+                                                           for r in curve)
+    for r in curve:  # the true cost, which the learner never saw, is what the logs record
+        assert r["constraint"] == int(r["cost_sum"] > 0) == int(r["x_min"] < -3.0)
+    ev = _lines(run / "eval.jsonl")
+    assert len(ev) == 1 and ev[0]["steps"] == 3072 and len(ev[0]["episodes"]) == 1
+    assert ev[0]["violation_rate"] == ev[0]["episodes"][0]["constraint"]
+    c = json.loads((run / "config.json").read_text())
+    assert c["method"] == "icl" and c["expert_data"] == "icrl_halfcheetah" and c["n_expert"] == 100
+    before = (run / "checkpoint.pt").read_bytes()
+    train_policy("halfcheetah", "icl", 0, tmp_path, 3072, **kw)  # finished: nothing to do
+    assert (run / "checkpoint.pt").read_bytes() == before
+    with pytest.raises(ValueError, match="other settings.*icl"):
+        train_policy("halfcheetah", "icl", 0, tmp_path, 4096, **kw)
+
+    res = build_report(tmp_path, tmp_path / "report", tasks=["halfcheetah", "pendulum"], figures=False)
+    row = res["tasks"]["halfcheetah"]["icl"]
+    assert row["seeds_done"] == 1 and row["violation_rate"][0] == ev[0]["violation_rate"]
+    assert row["feasible_reward"][0] == pytest.approx(ev[0]["episodes"][0]["reward_nc"])
+    missing = {(m["task"], m["method"]): m["why"] for m in res["missing"]}
+    assert ("halfcheetah", "icl") not in missing and missing["pendulum", "icl"].startswith("not run")
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "| halfcheetah | ICL baseline | 1 of 5 | 3,072 |" in md and "ICL's learned wall" in md
+
+
+def test_icl_method_refuses_tasks_without_an_icl_environment(capsys, tmp_path):
+    assert main(["--out", str(tmp_path), "--run", "pendulum:icl:0:100000"]) == 2
+    assert "method icl runs on ['ant', 'halfcheetah'] only" in capsys.readouterr().err
+    assert main(["--out", str(tmp_path), "--run", "halfcheetah:icl:0:100"]) == 2
+    assert "too small for ICL's 8 rounds" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="icl_config"):
+        expert_config("halfcheetah", "icl")

@@ -3,7 +3,7 @@
 ``pbicrl benchmark icrl train|demos|report`` (mounted on ``pbicrl``), and ``python -m pbicrl.cli.icrl_benchmark``
 (the same as ``pbicrl benchmark icrl train``, kept for the running trainings):
 
-``train --out DIR --run TASK:METHOD:SEED:STEPS [--run ...] [--inferred-run RUN] [--cost-mode MODE]``
+``train --out DIR --run TASK:METHOD:SEED:STEPS [--run ...] [--inferred-run RUN] [--cost-mode MODE] [--icl-budget B]``
     train the listed runs one after another (:func:`pbicrl.experiments.icrl_benchmark.train_policy`; each
     resumable, finished ones skipped);
 ``demos --task TASK --expert CKPT --unconstrained CKPT --out FILE.npz``
@@ -40,7 +40,8 @@ def _train_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="root directory of the runs")
     p.add_argument("--run", action="append", required=True, metavar="TASK:METHOD:SEED:STEPS",
                    help="a run to train (repeatable; trained in order), e.g. halfcheetah:ppo_lag_true:0:3000000; "
-                        "METHOD: ppo, ppo_lag_true, ppo_lag_inferred")
+                        "METHOD: ppo, ppo_lag_true, ppo_lag_inferred, icl (halfcheetah and ant; STEPS = ICL's "
+                        "total PPO steps, its default preset: 4500000 and 2500000)")
     p.add_argument("--checkpoint-every", type=int, default=2, help="updates between checkpoints (default 2)")
     p.add_argument("--eval-every", type=int, default=10, help="updates between evaluations (default 10)")
     p.add_argument("--inferred-run", type=Path, default=None,
@@ -48,14 +49,20 @@ def _train_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cost-mode", default="conservative",
                    help="ppo_lag_inferred: how the posterior becomes a cost (default conservative; see "
                         "pbicrl.envs.inferred_cost)")
+    p.add_argument("--icl-budget", default="default",
+                   help="icl: ICL's preset (default 'default'; its rounds, scaled to STEPS, see "
+                        "pbicrl.experiments.icrl_benchmark.icl_config)")
 
 
 def _train(args: argparse.Namespace) -> int:
-    from pbicrl.experiments.icrl_benchmark import expert_config, train_policy
+    from pbicrl.experiments.icrl_benchmark import expert_config, icl_config, train_policy
 
     jobs = [_parse_job(j) for j in args.run]
     for task, method, seed, steps in jobs:
-        expert_config(task, method)  # fail on a bad task or method before hours of training
+        if method == "icl":  # fail on a bad task, method or budget before hours of training
+            icl_config(task, steps, args.icl_budget)
+        else:
+            expert_config(task, method)
         if method == "ppo_lag_inferred" and args.inferred_run is None:
             raise ValueError("--inferred-run: method ppo_lag_inferred needs the run directory of pbicrl infer")
     if args.inferred_run is not None and not any(m == "ppo_lag_inferred" for _, m, _, _ in jobs):
@@ -64,7 +71,7 @@ def _train(args: argparse.Namespace) -> int:
         inferred = args.inferred_run if method == "ppo_lag_inferred" else None
         train_policy(task, method, seed, args.out, steps, checkpoint_every=args.checkpoint_every,
                      eval_every=args.eval_every, inferred_run=inferred, cost_mode=args.cost_mode,
-                     log=lambda s: print(time.strftime("%H:%M:%S"), s, flush=True))
+                     icl_budget=args.icl_budget, log=lambda s: print(time.strftime("%H:%M:%S"), s, flush=True))
     return 0
 
 
@@ -111,7 +118,7 @@ def add_subcommands(sub: Any) -> None:
                              description="The five virtual tasks of the ICRL benchmark: train reference policies, "
                                          "generate ranked demonstrations, report.")
     acts = icrl.add_subparsers(dest="action", required=True, metavar="ACTION")
-    t = acts.add_parser("train", help="train runs (ppo, ppo_lag_true, ppo_lag_inferred); resumable")
+    t = acts.add_parser("train", help="train runs (ppo, ppo_lag_true, ppo_lag_inferred, icl); resumable")
     _train_options(t)
     t.set_defaults(func=_train)
     d = acts.add_parser("demos", help="ranked demonstrations (groups 1 never crosses, 2 briefly, 3 through)",
@@ -159,6 +166,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:  # an ICL run stopped by SIGTERM/SIGINT has checkpointed: rerun to resume
+        print(f"stopped: {exc}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

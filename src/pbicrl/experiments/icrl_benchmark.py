@@ -20,6 +20,18 @@ the last checkpoint. Command line: ``python -m pbicrl.cli.icrl_benchmark --out D
     ``eval.jsonl`` record (the benchmark's metrics); the inferred cost only trains. The run's identity includes
     the SHA-256 of the inference run's ``summary.json``, the mode and the resulting boundaries, so a rerun with
     another posterior is refused.
+``icl``
+    The project's ICL baseline (:mod:`pbicrl.baselines.icl`, :func:`~pbicrl.baselines.icl.run_icl`) on the same
+    ranked demonstrations as ``ppo_lag_inferred`` (the shipped ``icrl_halfcheetah`` / ``icrl_ant``), of which ICL
+    uses the good group (the expert's 100 episodes, their post-step x): Blocked Half-Cheetah and Blocked Ant only
+    (:data:`ICL_TASKS`). ICL learns its constraint on x and trains its own PPO-Lagrangian with it
+    (:func:`icl_config`: ICL's ``default`` preset of the robot, its rounds and PPO settings, the round sizes
+    scaled to ``total_steps``); the environment it trains in is the benchmark's with ``info["cost"]`` removed.
+    The run directory has the layout below (``config.json``, ``curve.jsonl``, ``eval.jsonl``, ``progress.json``,
+    ``done.json``; the evaluations are the same :func:`_evaluate` with the true cost, every ``eval_every`` x
+    10,240 steps and at the end), plus ICL's own files (``checkpoint.pt`` is ICL's resume point; ``summary.json``
+    with the learned constraint's location and CMSE, ``progress.log``, ``budget.json``, ``constraint.pt``,
+    ``constraint_grid.npz``). No ``best.pt``.
 
 Hyperparameters follow the benchmark's expert configs (``train_ppo_lag_*.yaml``, note section 3) where our PPO has
 the same knob: 5 environments x 2048 steps per rollout, [64, 64] tanh networks, gamma 0.99 (reward and cost),
@@ -81,19 +93,25 @@ from numpy.typing import NDArray
 __all__ = [
     "make_task_env",
     "CHECKPOINT",
+    "ICL_TASKS",
     "METHODS",
     "CheckpointPolicy",
     "EpisodeRecorder",
     "demonstrations_dataset",
     "episode_metrics",
     "expert_config",
+    "icl_config",
     "load_run_checkpoint",
     "rollout_episodes",
     "train_policy",
 ]
 
 CHECKPOINT = "checkpoint.pt"
-METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred")
+METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
+ICL_TASKS: dict[str, str] = {"halfcheetah": "icrl_halfcheetah", "ant": "icrl_ant"}
+"""Tasks the ``icl`` method runs on -> their ICL environment (:func:`pbicrl.baselines.icl.icl_env`), which is also
+the name of the shipped dataset whose good group ICL learns from."""
+_ROLLOUT = 5 * 2048  # one update of the benchmark's PPO (expert_config): the unit of eval_every for icl too
 _LAGRANGIAN = ("ppo_lag_true", "ppo_lag_inferred")
 _EVAL_EPISODES = {"pendulum": 100}  # the note: 10 evaluation episodes per iteration, 100 for the pendulum
 
@@ -120,6 +138,8 @@ def expert_config(task: str, method: str) -> Any:
 
     name = icrl_task(task).name
     _check_method(method)
+    if method == "icl":
+        raise ValueError("method: icl trains with ICL's own PPO settings (icl_config), not expert_config")
     h = _EXPERT[name]
     lag = method in _LAGRANGIAN
     return PPOLagConfig(
@@ -130,6 +150,55 @@ def expert_config(task: str, method: str) -> Any:
         lagrange_min=h["nu0"] if lag else 0.0, lagrange_max=100.0, normalize_obs=True, scale_reward=True,
         torch_threads=1, episode_cost="step", lagrange_optimizer="adam" if lag else "sgd", scale_cost=lag,
     ).validate()
+
+
+def icl_config(task: str, total_steps: int, budget: str = "default",
+               overrides: dict[str, Any] | None = None) -> Any:
+    """ICL's settings (:class:`pbicrl.baselines.icl.ICLConfig`) for the ``icl`` method on ``task``.
+
+    ICL's preset ``budget`` of the task's ICL environment (``default``: HalfCheetah 8 rounds, 1 M + 7 x 0.5 M =
+    4.5 M PPO steps; Ant 6 rounds, 1 M + 5 x 0.3 M = 2.5 M; PPO 4 environments x 512 steps, ICL's own
+    PPO-Lagrangian on the expected discounted learned cost, budget beta = 1). When ``total_steps`` differs from
+    the preset's total, the number of rounds is kept and the rounds are scaled: later rounds to
+    ``round(round_steps * total_steps / preset_total)`` (a whole number of PPO rollouts, at least one), the first
+    round takes the rest. ``overrides`` (ICLConfig fields; ``ppo`` a dict of PPO fields) apply last.
+
+    Raises
+    ------
+    ValueError
+        A task without ICL environment (naming :data:`ICL_TASKS`), an unknown preset or option, or a
+        ``total_steps`` too small for the rounds.
+    """
+    from pbicrl.baselines.icl import ICLConfig, icl_preset
+
+    name = _task_name(task)
+    if name not in ICL_TASKS:
+        raise ValueError(f"task: method icl runs on {sorted(ICL_TASKS)} only (the tasks with ICL environments), "
+                         f"not {name!r}")
+    if int(total_steps) != total_steps or total_steps < 1:
+        raise ValueError(f"total_steps: must be an integer >= 1, got {total_steps!r}")
+    cfg = icl_preset(budget, ICL_TASKS[name])
+    if int(total_steps) != cfg.total_steps:
+        rollout = cfg.ppo.n_envs * cfg.ppo.n_steps
+        later = max(rollout, int(round(cfg.round_steps * total_steps / cfg.total_steps / rollout)) * rollout)
+        first = int(total_steps) - (cfg.rounds - 1) * later
+        if first < rollout:
+            raise ValueError(f"total_steps: {total_steps} is too small for ICL's {cfg.rounds} rounds of at least "
+                             f"{rollout} steps each (preset {budget!r})")
+        cfg = ICLConfig.from_dict({**cfg.to_dict(), "first_round_steps": first, "round_steps": later})
+    if overrides:
+        base, over = cfg.to_dict(), dict(overrides)
+        if "ppo" in over:
+            base["ppo"] = {**base["ppo"], **dict(over.pop("ppo"))}
+        cfg = ICLConfig.from_dict({**base, **over})
+    return cfg
+
+
+def _task_name(task: str) -> str:
+    """The short name of an ICRL task (``halfcheetah``, ...) from a short name or Gymnasium id."""
+    from pbicrl.envs.icrl_benchmark import icrl_task
+
+    return icrl_task(task).name
 
 
 def _check_method(method: str) -> None:
@@ -276,14 +345,14 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
                  checkpoint_every: int = 2, eval_every: int = 10, eval_episodes: int | None = None,
                  config_overrides: dict[str, Any] | None = None, log: Callable[[str], None] | None = print,
                  max_seconds: float | None = None, inferred_run: str | os.PathLike[str] | None = None,
-                 cost_mode: str = "conservative") -> Path:
+                 cost_mode: str = "conservative", icl_budget: str = "default") -> Path:
     """Train (or continue training) one policy of the ICRL benchmark.
 
     Parameters
     ----------
     task : str
         ``halfcheetah``, ``ant``, ``pendulum``, ``walker``, ``swimmer`` (or a ``pbicrl/...`` id).
-    method : {"ppo", "ppo_lag_true", "ppo_lag_inferred"}
+    method : {"ppo", "ppo_lag_true", "ppo_lag_inferred", "icl"}
     seed : int
     out : path
         Root of the runs; the run directory is ``out/<task>/<method>/seed<seed>``.
@@ -291,11 +360,14 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
         Target number of environment steps (a total: a rerun continues to it; a larger value extends a finished
         run).
     checkpoint_every, eval_every : int
-        Updates (rollouts of 5 x 2048 steps by default) between checkpoints and between evaluations.
+        Updates (rollouts of 5 x 2048 steps by default) between checkpoints and between evaluations. ``icl``:
+        ``eval_every`` x 10,240 environment steps between evaluations; checkpoints follow ICL's preset
+        (``checkpoint_every`` steps, and after every round), ``checkpoint_every`` here is not used.
     eval_episodes : int, optional
         Evaluation episodes (default 10; 100 for the pendulum, as the benchmark).
     config_overrides : dict, optional
         Fields of :func:`expert_config` to replace (e.g. ``n_steps`` for short tests); part of the run's identity.
+        ``icl``: fields of :class:`~pbicrl.baselines.icl.ICLConfig` (``ppo`` a dict), see :func:`icl_config`.
     log : callable or None
         Progress lines (``print`` by default).
     max_seconds : float, optional
@@ -306,13 +378,14 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
     cost_mode : str
         ``ppo_lag_inferred``: the :class:`~pbicrl.envs.inferred_cost.InferredConstraintCost` mode (default
         ``conservative``).
+    icl_budget : str
+        ``icl``: ICL's preset (``default``; ``smoke`` for tests), see :func:`icl_config`.
 
     Returns
     -------
     Path
         The run directory.
     """
-    from pbicrl import __version__
     from pbicrl._atomic import write_json
     from pbicrl.baselines.icl.checkpoint import save_checkpoint
     from pbicrl.baselines.ppo_lagrangian import PPOLagrangian
@@ -330,6 +403,12 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
     n_eval = int(eval_episodes if eval_episodes is not None else _EVAL_EPISODES.get(spec.name, 10))
     if n_eval < 1:
         raise ValueError(f"eval_episodes: must be >= 1, got {eval_episodes!r}")
+    if method == "icl":
+        if inferred_run is not None:
+            raise ValueError("inferred_run: only for method ppo_lag_inferred, not 'icl'")
+        return _train_icl(spec.name, int(seed), Path(out), int(total_steps), eval_every=int(eval_every),
+                          n_eval=n_eval, budget=icl_budget, overrides=config_overrides, log=log,
+                          max_seconds=max_seconds)
     cfg = expert_config(spec.name, method)
     if config_overrides:
         unknown = set(config_overrides) - set(cfg.__dataclass_fields__)
@@ -345,19 +424,10 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
                 "eval_episodes": n_eval, "eval_every": int(eval_every)}
     if inferred is not None:
         identity["inferred_cost"] = inferred[1]
-    cfg_path = run / "config.json"
-    if cfg_path.exists():
-        old = json.loads(cfg_path.read_text(encoding="utf-8"))
-        old_id = {k: old.get(k) for k in identity}
-        if old_id != json.loads(json.dumps(identity)):
-            diff = sorted(k for k in identity if old_id.get(k) != json.loads(json.dumps(identity[k])))
-            raise ValueError(f"out: {run} holds a run with other settings ({', '.join(diff)}); use another --out "
-                             "or delete it")
-    else:
-        write_json(cfg_path, {**identity, "pbicrl_version": __version__,
-                              **({"inferred_run": str(Path(inferred_run).resolve()),  # type: ignore[arg-type]
-                                  "inferred_boundary_source": inferred[0].boundary_source} if inferred else {}),
-                              "note": "ICRL benchmark reference policy; see pbicrl.experiments.icrl_benchmark"})
+    _write_identity(run, identity, {
+        **({"inferred_run": str(Path(inferred_run).resolve()),  # type: ignore[arg-type]
+            "inferred_boundary_source": inferred[0].boundary_source} if inferred else {}),
+        "note": "ICRL benchmark reference policy; see pbicrl.experiments.icrl_benchmark"})
 
     lock = run / "lock"
     _acquire(lock)
@@ -452,6 +522,164 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
                                            "best_eval_reward_nc": state["best_reward_nc"]})
             say(f"[{spec.name}/{method}/seed{seed}] done: {agent.num_steps} steps in {state['wall_s']:.0f}s")
         agent.close()
+        return run
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _write_identity(run: Path, identity: dict[str, Any], extra: dict[str, Any]) -> None:
+    """Write ``run/config.json`` (``identity``, the pbicrl version and ``extra``), or check that an existing one
+    has the same ``identity`` (else a ValueError naming the fields that differ)."""
+    from pbicrl import __version__
+    from pbicrl._atomic import write_json
+
+    cfg_path = run / "config.json"
+    if cfg_path.exists():
+        old = json.loads(cfg_path.read_text(encoding="utf-8"))
+        old_id = {k: old.get(k) for k in identity}
+        if old_id != json.loads(json.dumps(identity)):
+            diff = sorted(k for k in identity if old_id.get(k) != json.loads(json.dumps(identity[k])))
+            raise ValueError(f"out: {run} holds a run with other settings ({', '.join(diff)}); use another --out "
+                             "or delete it")
+    else:
+        write_json(cfg_path, {**identity, "pbicrl_version": __version__, **extra})
+
+
+def _keep_rows_until(path: Path, steps: int) -> list[dict[str, Any]]:
+    """Cut a JSON-lines log back to its rows with ``steps <= steps`` (those logged before the checkpoint a run
+    resumes from) and return them; creates the file when missing."""
+    from pbicrl._atomic import write_text
+
+    if not path.exists():
+        path.touch()
+        return []
+    rows = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    kept = [r for r in rows if int(r.get("steps", 0)) <= int(steps)]
+    if len(kept) != len(rows):
+        write_text(path, "".join(json.dumps(r, allow_nan=True) + "\n" for r in kept))
+    return kept
+
+
+def _train_icl(task: str, seed: int, out: Path, total_steps: int, *, eval_every: int, n_eval: int, budget: str,
+               overrides: dict[str, Any] | None, log: Callable[[str], None] | None,
+               max_seconds: float | None) -> Path:
+    """The ``icl`` method of :func:`train_policy` (see the module docstring): :func:`run_icl` in the run
+    directory, with the benchmark's logs written from its PPO updates and the final policy evaluated as the
+    other methods' are."""
+    import hashlib
+    from dataclasses import replace as dc_replace
+
+    from pbicrl._atomic import write_json
+    from pbicrl.baselines.icl import ICRLFactory, expert_coordinates, icl_env, icrl_coord, run_icl
+    from pbicrl.baselines.icl.checkpoint import CHECKPOINT as ICL_CHECKPOINT
+    from pbicrl.baselines.icl.checkpoint import load_checkpoint
+    from pbicrl.baselines.ppo_lagrangian import PPOLagrangian
+    from pbicrl.envs.icrl_benchmark import icrl_task
+    from pbicrl.inference.data import load_dataset, resolve_dataset_path
+
+    spec = icrl_task(task)
+    cfg = icl_config(spec.name, total_steps, budget, overrides)
+    data = ICL_TASKS[spec.name]
+    ds = load_dataset(data)
+    expert = expert_coordinates(ds, group=1, n=None)
+    say = log or (lambda _s: None)
+    tag = f"[{spec.name}/icl/seed{seed}]"
+
+    run = out / spec.name / "icl" / f"seed{seed}"
+    run.mkdir(parents=True, exist_ok=True)
+    identity = {"task": spec.name, "env_id": spec.env_id, "method": "icl", "seed": seed, "icl": cfg.to_dict(),
+                "icl_budget": budget, "expert_data": data,
+                "expert_data_sha256": hashlib.sha256(Path(resolve_dataset_path(data)).read_bytes()).hexdigest(),
+                "expert_group": 1, "n_expert": len(expert), "eval_episodes": n_eval, "eval_every": eval_every}
+    _write_identity(run, identity, {
+        "note": "ICRL benchmark: the ICL baseline (pbicrl.baselines.icl) on the good group of the task's ranked "
+                "demonstrations; checkpoint.pt, summary.json, budget.json, progress.log are ICL's own files; see "
+                "pbicrl.experiments.icrl_benchmark"})
+
+    lock = run / "lock"
+    _acquire(lock)
+    try:
+        curve, evals, ck = run / "curve.jsonl", run / "eval.jsonl", run / ICL_CHECKPOINT
+        if (run / "done.json").exists() and (run / "summary.json").exists():
+            say(f"{tag} already done")
+            return run
+        done_steps, wall0 = 0, 0.0
+        if ck.exists():
+            st = load_checkpoint(ck)
+            done_steps, wall0 = int(st["ppo"]["num_steps"]), float(st["state"].get("wall_time_s", 0.0))
+        rows = _keep_rows_until(curve, done_steps)
+        ev_rows = _keep_rows_until(evals, done_steps)
+        state: dict[str, Any] = {"episodes": len(rows), "evals": len(ev_rows), "stopped": False}
+        recent: list[dict[str, Any]] = rows[-100:]
+        interval = int(eval_every) * _ROLLOUT
+        t_start = time.perf_counter()
+
+        def evaluate(agent: Any) -> None:
+            res = _evaluate(agent, spec.name, n_eval, seed=10_000 * (seed + 1) + 1000 * int(state["evals"]))
+            state["evals"] = int(state["evals"]) + 1
+            _append_lines(evals, [{"update": agent.num_updates, "steps": agent.num_steps, "lam": agent.lam, **res}])
+            say(f"{tag} eval @ {agent.num_steps}: reward {res['reward']:.1f} reward_nc {res['reward_nc']:.1f} "
+                f"violation_rate {res['violation_rate']:.2f}")
+
+        sink: list[dict[str, Any]] = []
+
+        def on_update(ag: Any, info: dict[str, Any]) -> bool:
+            new = []
+            for m in sink:
+                state["episodes"] = int(state["episodes"]) + 1
+                new.append({"episode": state["episodes"], "steps": ag.num_steps, "update": ag.num_updates, **m})
+            sink.clear()
+            if new:
+                _append_lines(curve, new)
+                recent.extend(new)
+                del recent[:-100]
+            rollout = ag.cfg.n_envs * ag.cfg.n_steps
+            if ag.num_steps // interval > (ag.num_steps - rollout) // interval:
+                evaluate(ag)
+            write_json(run / "progress.json", {
+                "steps": ag.num_steps, "updates": ag.num_updates, "episodes": state["episodes"], "lam": ag.lam,
+                "last100_reward": _last_mean(recent, "reward"), "last100_reward_nc": _last_mean(recent, "reward_nc"),
+                "last100_violation_rate": _last_mean(recent, "constraint"),
+                "wall_s": wall0 + time.perf_counter() - t_start, "seconds_this_call": time.perf_counter() - t_start,
+                "total_steps_target": cfg.total_steps})
+            if max_seconds is not None and time.perf_counter() - t_start > max_seconds:
+                state["stopped"] = True
+                return False
+            return True
+
+        icl_spec = icl_env(data)
+        icl_spec = dc_replace(icl_spec, make=ICRLFactory(spec.name, wrap=lambda e: EpisodeRecorder(e, sink)),
+                              make_eval=ICRLFactory(spec.name))
+        say(f"{tag} ICL: {cfg.rounds} rounds, {cfg.total_steps} PPO steps, {len(expert)} expert episodes of {data}"
+            + (f"; resuming at {done_steps} steps" if done_steps else ""))
+        try:
+            summary = run_icl(icl_spec, expert, cfg, run, seed=seed, progress=log is not None, on_update=on_update)
+        except KeyboardInterrupt:
+            if state["stopped"]:  # max_seconds: checkpointed, resumable
+                say(f"{tag} stopped after {max_seconds} s (checkpoint written)")
+                return run
+            raise
+
+        # the final policy, evaluated as the other methods' are (stochastic, fresh environments, the true cost)
+        t_eval = time.perf_counter()
+        final = load_checkpoint(ck)["ppo"]
+        agent = PPOLagrangian(ICRLFactory(spec.name), icrl_coord, lambda cs: np.zeros(len(cs)),
+                              dc_replace(cfg.ppo, n_envs=1), seed=seed)
+        try:
+            agent.load_state_dict(final)
+        finally:
+            agent.close()
+        last = _keep_rows_until(evals, agent.num_steps)
+        if not last or int(last[-1]["steps"]) != agent.num_steps:
+            evaluate(agent)
+        wall = float(summary.get("runtime_s", 0.0)) + time.perf_counter() - t_eval
+        write_json(run / "done.json", {
+            "steps": agent.num_steps, "updates": agent.num_updates, "episodes": state["episodes"], "wall_s": wall,
+            "icl_location": summary.get("location"), "true_location": summary.get("true_location"),
+            "cmse_location": summary.get("cmse_location"), "cmse_grid": summary.get("cmse_grid"),
+            "rounds": cfg.rounds})
+        say(f"{tag} done: {agent.num_steps} steps in {wall:.0f} s; ICL's wall at {summary.get('location')} "
+            f"(true x < {spec.wall:g})")
         return run
     finally:
         lock.unlink(missing_ok=True)

@@ -59,8 +59,9 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
     dict
         ``done`` (bool), ``steps``, ``violation_rate``, ``feasible_reward``, ``reward`` and ``eval_episodes`` of
         the last evaluation (None without one), ``train_violation_rate`` and ``train_feasible_reward`` of the
-        last 100 training episodes (None without any), ``wall_s``, and ``inferred_cost`` (from ``config.json``;
-        ``ppo_lag_inferred`` runs).
+        last 100 training episodes (None without any), ``wall_s``, ``inferred_cost`` (from ``config.json``;
+        ``ppo_lag_inferred`` runs), and for a finished ``icl`` run ``icl_location`` (from ``done.json``: where ICL's
+        learned constraint first reaches 0.5, None if nowhere).
     """
     d = Path(seed_dir)
     evals = _read_jsonl(d / "eval.jsonl")
@@ -71,6 +72,8 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
     out: dict[str, Any] = {"done": done, "steps": info.get("steps"), "wall_s": info.get("wall_s"),
                            "violation_rate": None, "feasible_reward": None, "reward": None, "eval_episodes": 0,
                            "train_violation_rate": None, "train_feasible_reward": None}
+    if done and "icl_location" in info:
+        out["icl_location"] = info["icl_location"]
     if evals:
         eps = evals[-1].get("episodes") or []
         if not eps:
@@ -135,6 +138,7 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     """
     from pbicrl._atomic import write_json, write_text
     from pbicrl.envs.icrl_benchmark import ICRL_TASKS, icrl_task
+    from pbicrl.experiments.icrl_benchmark import ICL_TASKS
 
     root = Path(runs)
     if not root.is_dir():
@@ -168,9 +172,16 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
                 if inf:
                     agg["inferred_boundary"] = inf[0].get("boundary")
                     agg["inferred_mode"] = inf[0].get("mode")
+                locs = [v["icl_location"] for v in done.values() if "icl_location" in v]
+                if locs:
+                    found = [float(x) for x in locs if x is not None]
+                    agg["icl_location"] = _mean_sd(found) if found else None
+                    agg["icl_location_seeds"] = [len(found), len(locs)]
             else:
-                results["missing"].append({"task": t, "method": m,
-                                           "why": "no run directory" if not per else "no finished seed"})
+                why = "no run directory" if not per else "no finished seed"
+                if m == "icl" and not per and t not in ICL_TASKS:
+                    why = f"not run: the icl method has {' and '.join(sorted(ICL_TASKS))} only"
+                results["missing"].append({"task": t, "method": m, "why": why})
             rows[m] = agg
         results["tasks"][t] = rows
 
@@ -242,6 +253,20 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
             b = ", ".join(f"{k} {'<=' if spec.side == 'behind' else '>='} {v[0]:.3f}"
                           for k, v in a["inferred_boundary"].items())
             lines.append(f"| {t} | {a.get('inferred_mode')} | {b} | x {'<' if spec.side == 'behind' else '>'} "
+                         f"{spec.wall:g} |")
+    icl = [(t, res["tasks"][t]["icl"]) for t in names if "icl" in res["tasks"][t]
+           and res["tasks"][t]["icl"].get("icl_location_seeds")]
+    if icl:
+        lines += ["", "ICL's learned wall against the true one (where its constraint c first reaches 0.5, scanning "
+                  "from the good demonstrations' nearest approach to the wall; mean ± sd over the seeds where it "
+                  "does):", "", "| task | ICL wall | seeds with a wall | true wall |", "|---|---|---|---|"]
+        for t, a in icl:
+            spec = icrl_task(t)
+            n_found, n_all = a["icl_location_seeds"]
+            loc = a.get("icl_location")
+            rel = "<" if spec.side == "behind" else ">="
+            wall = "none" if loc is None else f"x {rel} {_fmt(loc, 3, n_found)}"
+            lines.append(f"| {t} | {wall} | {n_found} of {n_all} | x {'<' if spec.side == 'behind' else '>'} "
                          f"{spec.wall:g} |")
     if drawn:
         lines += [""] + [f"![{t}]({p})" for t, p in drawn.items()]

@@ -44,7 +44,16 @@ public name is importable from here. Stopping on SIGTERM/SIGINT, the progress lo
 from __future__ import annotations
 
 from pbicrl.baselines.icl.checkpoint import load_checkpoint, save_checkpoint, write_json_file
-from pbicrl.baselines.icl.environments import ICLEnv, expert_coordinates, icl_env, point_mass_expert_demos
+from pbicrl.baselines.icl.environments import (
+    ICRL_ICL_ENVS,
+    ICLEnv,
+    ICRLFactory,
+    expert_coordinates,
+    hide_true_cost,
+    icl_env,
+    icrl_coord,
+    point_mass_expert_demos,
+)
 from pbicrl.baselines.icl.losses import accrual, constraint_location, constraint_loss, discount_matrix, mixture_weights
 from pbicrl.baselines.icl.network import ConstraintNet
 from pbicrl.baselines.icl.presets import ENVS, PRESETS, ICLConfig, icl_preset
@@ -57,13 +66,17 @@ __all__ = [
     "ConstraintNet",
     "ICLConfig",
     "ICLEnv",
+    "ICRLFactory",
+    "ICRL_ICL_ENVS",
     "accrual",
     "constraint_location",
     "constraint_loss",
     "discount_matrix",
     "expert_coordinates",
+    "hide_true_cost",
     "icl_env",
     "icl_preset",
+    "icrl_coord",
     "mixture_weights",
     "point_mass_expert_demos",
     "run_icl",

@@ -1,5 +1,11 @@
 """The environments ICL runs on (:class:`ICLEnv`: factory with the nominal reward, constrained coordinate, true
-constraint for evaluation) and the expert demonstrations it learns from."""
+constraint for evaluation) and the expert demonstrations it learns from.
+
+Two families: the project's wall tasks (``"halfcheetah"``, ``"ant"``: a wall in front at x = 8 / 10, and
+``"point_mass"``), and the ICRL benchmark's Blocked Half-Cheetah and Blocked Ant (``"icrl_halfcheetah"``,
+``"icrl_ant"``: :mod:`pbicrl.envs.icrl_benchmark`, the wall *behind* the start, a step violates iff its post-step
+x < -3), whose expert coordinates are the good group of the shipped datasets of the same names.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +19,12 @@ from numpy.typing import NDArray
 
 from pbicrl.baselines.icl.presets import ENVS
 
-__all__ = ["ICLEnv", "icl_env", "point_mass_expert_demos", "expert_coordinates"]
+__all__ = ["ICLEnv", "ICRLFactory", "ICRL_ICL_ENVS", "expert_coordinates", "hide_true_cost", "icl_env", "icrl_coord",
+           "point_mass_expert_demos"]
+
+ICRL_ICL_ENVS: dict[str, str] = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant"}
+"""ICL environment name -> ICRL benchmark task (:data:`pbicrl.envs.icrl_benchmark.ICRL_TASKS`); the shipped
+dataset with the task's ranked demonstrations has the same name as the ICL environment."""
 
 
 @dataclass(frozen=True)
@@ -35,6 +46,12 @@ class ICLEnv:
         1-D positions scanned for the constraint location (None: no scalar location, e.g. the point mass).
     true_location : float or None
         The true wall position.
+    side : {"infront", "behind"}
+        Where the wall is: ``"infront"`` (a halfspace ``x >= theta``: the location is scanned upward from the
+        lowest expert coordinate) or ``"behind"`` (``x < theta``: scanned downward from it).
+    make_eval : callable or None
+        Factory of the environment for ICL's own rollouts (each round's policy sample, the final evaluation);
+        None: ``make``. Lets a caller record the training environments' episodes without ICL's rollouts.
     """
 
     name: str
@@ -44,6 +61,12 @@ class ICLEnv:
     grid: NDArray[np.float64]
     location_grid: NDArray[np.float64] | None
     true_location: float | None
+    side: str = "infront"
+    make_eval: Callable[[], Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.side not in ("infront", "behind"):
+            raise ValueError(f"ICLEnv.side: must be 'infront' or 'behind', got {self.side!r}")
 
 
 class _WallFactory:
@@ -64,6 +87,69 @@ class _PointMassFactory:
         return PointMassEnv(reward_weights="nominal")
 
 
+def _hide_cost_class() -> type:
+    import gymnasium as gym
+
+    class HideTrueCost(gym.Wrapper):
+        """Drops ``info["cost"]`` (the benchmark's true cost) from every step, so that nothing downstream (ICL's
+        learner) can read it; rewards, observations and termination are the environment's."""
+
+        def step(self, action: Any) -> Any:
+            obs, r, term, trunc, info = self.env.step(action)
+            info = dict(info)
+            info.pop("cost", None)
+            return obs, r, term, trunc, info
+
+    return HideTrueCost
+
+
+_HIDE: type | None = None
+
+
+def hide_true_cost(env: Any) -> Any:
+    """Wrap ``env`` so that its steps' ``info`` has no ``"cost"`` (:func:`_hide_cost_class`)."""
+    global _HIDE
+    if _HIDE is None:
+        _HIDE = _hide_cost_class()
+    return _HIDE(env)
+
+
+class ICRLFactory:
+    """Factory of an ICRL benchmark task's environment for ICL: its nominal reward (the benchmark's reward has no
+    constraint term), the true cost removed from ``info`` (:func:`hide_true_cost`).
+
+    Parameters
+    ----------
+    task : str
+        ICRL task (``"halfcheetah"``, ``"ant"``).
+    wrap : callable, optional
+        Applied to the task's environment *before* the cost is hidden (e.g. a recorder of the true per-episode
+        metrics, which the learner then still cannot see).
+    """
+
+    def __init__(self, task: str, wrap: Callable[[Any], Any] | None = None) -> None:
+        self.task = task
+        self.wrap = wrap
+
+    def __call__(self) -> Any:
+        import gymnasium as gym
+
+        from pbicrl.envs import register_envs
+        from pbicrl.envs.icrl_benchmark import icrl_task
+
+        register_envs()
+        env = gym.make(icrl_task(self.task).env_id)
+        if self.wrap is not None:
+            env = self.wrap(env)
+        return hide_true_cost(env)
+
+
+def icrl_coord(obs: Any, info: dict) -> NDArray[np.float64]:
+    """The constrained coordinate of an ICRL task's reached state: the post-step ``obs[0]`` (the root's x, what
+    the benchmark's wall constrains)."""
+    return np.array([float(np.asarray(obs, dtype=np.float64).reshape(-1)[0])])
+
+
 def _wall_coord(obs: Any, info: dict) -> NDArray[np.float64]:
     return np.array([float(info["x_position"])])
 
@@ -73,11 +159,16 @@ def _obs_coord(obs: Any, info: dict) -> NDArray[np.float64]:
 
 
 def icl_env(name: str) -> ICLEnv:
-    """The :class:`ICLEnv` of ``"halfcheetah"``, ``"ant"`` (walls at x = 8 and 10) or ``"point_mass"``.
+    """The :class:`ICLEnv` of ``"halfcheetah"``, ``"ant"`` (walls at x = 8 and 10), ``"point_mass"``, or of the
+    ICRL benchmark's ``"icrl_halfcheetah"``, ``"icrl_ant"`` (walls behind the start: x < -3 violates).
 
     The CMSE grid spans ``[0, 2 * wall]`` on x (so that an all-0 or all-1 constraint scores 0.5), 401 points;
     the location is scanned up to ``5 * wall`` (from the lowest expert x, see :func:`run_icl`). For the point mass the grid is 43 x 43 over
-    ``[-1, 20]^2`` and the truth is the union of the two discs.
+    ``[-1, 20]^2`` and the truth is the union of the two discs. For the ICRL tasks: the environment is the
+    benchmark's (:class:`ICRLFactory`: nominal reward, ``info["cost"]`` removed), the coordinate the post-step
+    ``obs[0]`` (:func:`icrl_coord`), the truth the benchmark's strict indicator x < -3, the CMSE grid
+    ``[2 * wall, 0] = [-6, 0]`` (401 points, the start at one end and the wall in the middle), and the location is
+    scanned downward from the lowest expert x over ``[5 * wall, -5 * wall] = [-15, 15]``.
     """
     if name in ("halfcheetah", "ant"):
         from pbicrl.envs.mujoco_wall import WALL_SPECS
@@ -86,6 +177,15 @@ def icl_env(name: str) -> ICLEnv:
         return ICLEnv(name, _WallFactory(name), _wall_coord,
                       lambda x, w=wall: (np.asarray(x, dtype=np.float64).reshape(-1) >= w).astype(float),
                       np.linspace(0.0, 2 * wall, 401)[:, None], np.linspace(-10.0, 5 * wall, 2001), float(wall))
+    if name in ICRL_ICL_ENVS:
+        from pbicrl.envs.icrl_benchmark import icrl_task
+
+        task = icrl_task(ICRL_ICL_ENVS[name])
+        if task.side != "behind" or task.wall >= 0:
+            raise ValueError(f"env: {name!r} expects a wall behind the start, got {task.side} {task.wall}")
+        w = float(task.wall)
+        return ICLEnv(name, ICRLFactory(task.name), icrl_coord, _ICRLTruth(task.name),
+                      np.linspace(2 * w, 0.0, 401)[:, None], np.linspace(5 * w, -5 * w, 2001), w, side="behind")
     if name == "point_mass":
         from pbicrl.envs.point_mass import HIGH, LOW, POINT_MASS_TASK
 
@@ -98,6 +198,18 @@ def icl_env(name: str) -> ICLEnv:
 
         return ICLEnv(name, _PointMassFactory(), _obs_coord, truth, grid, None, None)
     raise ValueError(f"env: unknown ICL environment {name!r}; choose one of {ENVS}")
+
+
+class _ICRLTruth:
+    """The true constraint of an ICRL task on rows of coordinates (x): its strict wall indicator."""
+
+    def __init__(self, task: str) -> None:
+        self.task = task
+
+    def __call__(self, x: Any) -> NDArray[np.float64]:
+        from pbicrl.envs.icrl_benchmark import icrl_task
+
+        return icrl_task(self.task).cost(np.asarray(x, dtype=np.float64).reshape(-1))
 
 
 def point_mass_expert_demos(n: int, seed: int = 0) -> list[NDArray[np.float64]]:

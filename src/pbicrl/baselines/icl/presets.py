@@ -11,7 +11,8 @@ from pbicrl.baselines.ppo_lagrangian import PPOLagConfig
 __all__ = ["PRESETS", "ENVS", "ICLConfig", "icl_preset"]
 
 PRESETS = ("smoke", "default", "paper")
-ENVS = ("halfcheetah", "ant", "point_mass")
+ENVS = ("halfcheetah", "ant", "point_mass", "icrl_halfcheetah", "icrl_ant")
+_PRESET_OF = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant"}  # the ICRL tasks use their robot's budgets
 
 
 @dataclass
@@ -148,11 +149,14 @@ def icl_preset(name: str, env: str = "halfcheetah") -> ICLConfig:
         For a workstation: HalfCheetah/Ant 10 rounds, 2 M + 9 x 1 M = 11 M PPO steps, 20 policy episodes per
         round (2.4x the default's RL; not run here). Not the authors' settings, which the PBICRL paper does not
         print (it reports ~20,000 s per ICL seed).
+
+    The ICRL benchmark's ``icrl_halfcheetah`` and ``icrl_ant`` get the budgets of ``halfcheetah`` and ``ant``.
     """
     if name not in PRESETS:
         raise ValueError(f"budget: unknown preset {name!r}; choose one of {PRESETS}")
     if env not in ENVS:
         raise ValueError(f"env: unknown ICL environment {env!r}; choose one of {ENVS}")
+    env = _PRESET_OF.get(env, env)
     if env == "point_mass":
         ppo = PPOLagConfig(n_envs=4, n_steps=256, minibatch_size=256, n_epochs=10, init_log_std=0.0)
         if name == "smoke":

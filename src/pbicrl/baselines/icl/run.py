@@ -56,17 +56,27 @@ def _rollout_coords(ppo: PPOLagrangian, env: Any, coord: Callable, n: int, seed:
 
 
 def _location(net: ConstraintNet, spec: ICLEnv, xmin: float) -> float | None:
-    """Constraint location, scanning upward from the lowest expert coordinate (the demonstrations' start):
-    the network's extrapolation below any data says nothing about a halfspace ``x >= theta``."""
+    """Constraint location, scanning from the lowest expert coordinate: upward for a wall in front (from the
+    demonstrations' start: the network's extrapolation below any data says nothing about a halfspace
+    ``x >= theta``), downward for a wall behind (``spec.side == "behind"``: from the demonstrations' nearest
+    approach to it, beyond which they say nothing)."""
     if spec.location_grid is None:
         return None
+    if spec.side == "behind":
+        g = np.concatenate([[xmin], spec.location_grid[spec.location_grid < xmin][::-1]])
+        if g.size < 2:
+            return None
+        # constraint_location scans an increasing grid: scan the mirrored one
+        loc = constraint_location(net.numpy(g), -g)
+        return None if loc is None else -loc
     g = spec.location_grid[spec.location_grid > xmin]
     g = np.concatenate([[xmin], g])
     return constraint_location(net.numpy(g), g)
 
 
 def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | str = "default", out_dir: str | os.PathLike = "icl-run",
-            *, seed: int = 0, progress: bool = True, max_session_steps: int | None = None) -> dict[str, Any]:
+            *, seed: int = 0, progress: bool = True, max_session_steps: int | None = None,
+            on_update: Callable[[PPOLagrangian, dict], bool | None] | None = None) -> dict[str, Any]:
     """Run (or resume) ICL and return its summary (also written to ``out_dir/summary.json``).
 
     Parameters
@@ -85,12 +95,16 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
     max_session_steps : int, optional
         Stop after this many PPO steps in this call (checkpoint, then ``KeyboardInterrupt``), e.g. to run a
         long budget in slices on a shared machine; calling again resumes.
+    on_update : callable, optional
+        ``on_update(ppo, info)`` after every PPO update (before the checkpoint that update may trigger), e.g. to
+        log the training episodes; returning ``False`` stops the run as SIGTERM does (checkpoint, then
+        ``KeyboardInterrupt``); any other return value (None included) lets it go on.
 
     Returns
     -------
     dict
-        ``location`` (1-D coordinates: where c first reaches 0.5 scanning up from the lowest expert coordinate; None
-        if it never does), ``cmse_location`` (None
+        ``location`` (1-D coordinates: where c first reaches 0.5 scanning from the lowest expert coordinate, up for
+        a wall in front and down for one behind (:attr:`ICLEnv.side`); None if it never does), ``cmse_location`` (None
         without a location), ``cmse_grid``, ``runtime_s`` (wall time summed over sessions), per-round history,
         final-policy statistics and the budget.
     """
@@ -128,7 +142,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
         return net.numpy(c)
 
     ppo = PPOLagrangian(spec.make, spec.coord, cost_np, cfg.ppo, seed=seed)
-    eval_env = spec.make()
+    eval_env = (spec.make_eval or spec.make)()
     # accrual bins: the expert's range widened on both sides (policies may roam far beyond it)
     lo, hi = allc.min(0), allc.max(0)
     span = np.maximum(hi - lo, 1.0)
@@ -181,7 +195,9 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
     clock = SessionClock(save, stop, ppo.num_steps, cfg.checkpoint_every, max_session_steps)
     last_log = {"t": time.time()}
 
-    def on_update(p: PPOLagrangian, info: dict) -> bool:
+    def on_ppo_update(p: PPOLagrangian, info: dict) -> bool:
+        if on_update is not None and on_update(p, info) is False:
+            stop.request()
         if time.time() - last_log["t"] > 30 or p.num_steps >= cfg.round_target(state["round"]):
             log(f"round {state['round'] + 1} steps {p.num_steps} return {info['ep_return']:.1f} len {info['ep_len']:.0f} "
                 f"max_coord {info['ep_max_coord']:.2f} Jc {info['ep_cost']:.3f} lambda {info['lam_next']:.3f} "
@@ -200,7 +216,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
                     ppo = fresh
                     ppo.num_steps, ppo.num_updates = steps, nup
                 ppo.set_cost_fn(cost_np)
-                ppo.learn(cfg.round_target(r), callback=on_update)
+                ppo.learn(cfg.round_target(r), callback=on_ppo_update)
                 if stop.requested:
                     save("interrupted")
                     log(f"interrupted at {ppo.num_steps} PPO steps; checkpoint written")
