@@ -9,6 +9,9 @@ a warm compile (a throwaway run first), alternating so that every row meets the 
   fixed number of iterations (``--before-iterations``; ESS per second is rate-like, so a shorter run than the old
   400,000 estimates it);
 * ``after``: the default of this tree, ``iterations="auto"``: wall time to convergence and ESS per second;
+* ``after_fixed`` (``--rows before,after,after_fixed,paper``): this tree's sampler with the moves of ``auto``
+  (``p_flip`` 0.3, ``p_joint`` 0.3) at the ``before`` row's fixed length and burn-in: ESS per second at the same
+  share of warm-up as ``before`` (a run that stops at ESS 400 pays its warm-up and start-up out of fewer draws);
 * ``paper``: the paper's Algorithm 1 with the pairwise likelihood (Eq. 7, margins 0), fixed iterations.
 
 Effective draws per second = the smallest bulk or tail ESS over the reported quantities
@@ -55,6 +58,8 @@ def _worker(row: str, data: str, iterations: int, seed: int) -> dict[str, Any]:
         kw.update(sampler="paper", likelihood="pairwise", iterations=iterations)
     elif row == "before":
         kw.update(iterations=iterations)
+    elif row == "after_fixed":  # today's sampler and moves at the before row's fixed length: ESS/s at steady state
+        kw.update(iterations=iterations, p_flip=0.3, p_joint=0.3)
     # a short throwaway run compiles (or loads from the cache) every function the row uses
     pbicrl.infer(ds, **{**kw, "iterations": 2_000 if row != "after" else 2_000, "chains": 1})
     t0 = time.perf_counter()
@@ -109,7 +114,8 @@ def main() -> None:
                 if row == "before" and not a.baseline_src:
                     continue
                 src = a.baseline_src if row == "before" else SRC
-                it = {"before": a.before_iterations, "paper": a.paper_iterations}.get(row, 0)
+                it = {"before": a.before_iterations, "after_fixed": a.before_iterations,
+                      "paper": a.paper_iterations}.get(row, 0)
                 r = _run(row, data, it, seed, src)
                 results.append(r)
                 print(f"{data:12s} {row:7s} seed {seed}: wall {r['wall_s']:7.1f} s, min ESS {r['min_ess']:7.0f}, "
