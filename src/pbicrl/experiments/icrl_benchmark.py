@@ -288,6 +288,21 @@ def _truncate(path: Path, size: int) -> None:
             fh.truncate(size)
 
 
+def _drain_episodes(sink: list[dict[str, Any]], state: dict[str, Any], ag: Any, curve: Path,
+                    recent: list[dict[str, Any]]) -> None:
+    """Move the episodes finished since the last update from ``sink`` to ``curve.jsonl`` (numbered, with the
+    agent's step and update counts) and to ``recent`` (the last 100, for the progress line)."""
+    rows = []
+    for m in sink:
+        state["episodes"] = int(state["episodes"]) + 1
+        rows.append({"episode": state["episodes"], "steps": ag.num_steps, "update": ag.num_updates, **m})
+    sink.clear()
+    if rows:
+        _append_lines(curve, rows)
+        recent.extend(rows)
+        del recent[:-100]
+
+
 def _append_lines(path: Path, rows: list[dict[str, Any]]) -> int:
     """Append JSON lines, flush to disk; return the file's new size."""
     with open(path, "a", encoding="utf-8") as fh:
@@ -486,15 +501,7 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
                 f"reward_nc {res['reward_nc']:.1f} violation_rate {res['violation_rate']:.2f}")
 
         def callback(ag: Any, info: dict[str, Any]) -> bool:
-            rows = []
-            for m in sink:
-                state["episodes"] = int(state["episodes"]) + 1
-                rows.append({"episode": state["episodes"], "steps": ag.num_steps, "update": ag.num_updates, **m})
-            sink.clear()
-            if rows:
-                _append_lines(curve, rows)
-                recent.extend(rows)
-                del recent[:-100]
+            _drain_episodes(sink, state, ag, curve, recent)
             if ag.num_updates % eval_every == 0:
                 evaluate()
             stop = max_seconds is not None and time.perf_counter() - t_start > max_seconds
@@ -624,15 +631,7 @@ def _train_icl(task: str, seed: int, out: Path, total_steps: int, *, eval_every:
         sink: list[dict[str, Any]] = []
 
         def on_update(ag: Any, info: dict[str, Any]) -> bool:
-            new = []
-            for m in sink:
-                state["episodes"] = int(state["episodes"]) + 1
-                new.append({"episode": state["episodes"], "steps": ag.num_steps, "update": ag.num_updates, **m})
-            sink.clear()
-            if new:
-                _append_lines(curve, new)
-                recent.extend(new)
-                del recent[:-100]
+            _drain_episodes(sink, state, ag, curve, recent)
             rollout = ag.cfg.n_envs * ag.cfg.n_steps
             if ag.num_steps // interval > (ag.num_steps - rollout) // interval:
                 evaluate(ag)
