@@ -170,8 +170,9 @@ def icl_config(task: str, total_steps: int, budget: str = "default",
         ``total_steps`` too small for the rounds.
     """
     from pbicrl.baselines.icl import ICLConfig, icl_preset
+    from pbicrl.envs.icrl_benchmark import icrl_task
 
-    name = _task_name(task)
+    name = icrl_task(task).name
     if name not in ICL_TASKS:
         raise ValueError(f"task: method icl runs on {sorted(ICL_TASKS)} only (the tasks with ICL environments), "
                          f"not {name!r}")
@@ -192,13 +193,6 @@ def icl_config(task: str, total_steps: int, budget: str = "default",
             base["ppo"] = {**base["ppo"], **dict(over.pop("ppo"))}
         cfg = ICLConfig.from_dict({**base, **over})
     return cfg
-
-
-def _task_name(task: str) -> str:
-    """The short name of an ICRL task (``halfcheetah``, ...) from a short name or Gymnasium id."""
-    from pbicrl.envs.icrl_benchmark import icrl_task
-
-    return icrl_task(task).name
 
 
 def _check_method(method: str) -> None:
