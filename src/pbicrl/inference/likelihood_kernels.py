@@ -756,7 +756,7 @@ def _pl_h_at(delta: float, rho: float, u0: np.ndarray, b: np.ndarray, n_mid: int
 
 def _h_at(s0: float, delta: float, hargs: tuple) -> float:
     r""":math:`h(s_0 + \delta)` of a group: per item (``hargs`` = the 5 arguments of :func:`_pl_h_at` after
-    :math:`\rho`) or from binned moments (the 6 arguments of :func:`_gb_h` after ``s``). Compiled only."""
+    :math:`\rho`) or from binned moments (the 6 arguments of :func:`_gb_h0` after ``s``). Compiled only."""
     raise NotImplementedError("compiled only")
 
 
@@ -768,7 +768,7 @@ def _h_at_impl(s0, delta, hargs):  # Numba types, at compile time
         return per_item
 
     def binned(s0, delta, hargs):
-        return _gb_h(s0 + delta, *hargs)[0]
+        return _gb_h0(s0 + delta, *hargs)
     return binned
 
 
@@ -1002,17 +1002,19 @@ def _gb_logsumexp(cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def _pl_taylor(u: float, T: np.ndarray, f: np.ndarray) -> None:
-    """``T[q] = L^(q)(u) / q!`` for ``q < len(T)``, :math:`L(u) = \\log(1 - e^{-e^u})`, by series arithmetic:
+def _pl_taylor(u: float, T: np.ndarray, f: np.ndarray, M: int) -> None:
+    """``T[q] = L^(q)(u) / q!`` for ``q < M``, :math:`L(u) = \\log(1 - e^{-e^u})`, by series arithmetic:
     :math:`e^{-v e^d} = e^{-v} \\exp(g(d))` with :math:`g = -v (e^d - 1)`, then the logarithm of
-    :math:`1 - e^{-v e^d}`."""
-    M = T.size
+    :math:`1 - e^{-v e^d}`. ``T`` and ``f`` are scratch of length >= ``M``; the orders below ``M`` do not depend on
+    ``M`` (bit for bit)."""
     v = math.exp(u)
+    for k in range(1, M):  # T holds k g_k = -v / (k-1)! until the log series overwrites it from below
+        T[k] = -(v * _INV_FACT[k - 1])
     f[0] = 1.0
-    for n in range(1, M):  # f = exp(g): f_n = (1/n) sum_k k g_k f_{n-k}, k g_k = -v / (k-1)!
+    for n in range(1, M):  # f = exp(g): f_n = (1/n) sum_k k g_k f_{n-k}
         acc = 0.0
         for k in range(1, n + 1):
-            acc -= v * _INV_FACT[k - 1] * f[n - k]
+            acc += T[k] * f[n - k]
         f[n] = acc / n
     ev = math.exp(-v)
     if v <= _LN2:
@@ -1021,20 +1023,21 @@ def _pl_taylor(u: float, T: np.ndarray, f: np.ndarray) -> None:
     else:
         D0 = 1.0 - ev
         T[0] = math.log1p(-ev)
-    for n in range(1, M):  # y = log(D): y_n = (D_n - (1/n) sum_{k<n} k y_k D_{n-k}) / D_0, D_n = -e^{-v} f_n
+    for n in range(1, M):
+        f[n] = -ev * f[n]  # D_n, the series of 1 - e^{-v e^d} above order 0
+    for n in range(1, M):  # y = log(D): y_n = (D_n - (1/n) sum_{k<n} k y_k D_{n-k}) / D_0
         acc = 0.0
         for k in range(1, n):
-            acc += k * T[k] * (-ev * f[n - k])
-        T[n] = (-ev * f[n] - acc / n) / D0
+            acc += k * T[k] * f[n - k]
+        T[n] = (f[n] - acc / n) / D0
 
 
-@njit(cache=True, error_model="numpy")
-def _gb_h(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray,
-          f: np.ndarray) -> tuple[float, float, float]:
-    """:math:`h(s), h'(s), h''(s)` of a binned group, :math:`u_b = s + \\text{shift} + c_b`."""
+@njit(cache=True, error_model="numpy", inline="always")
+def _gb_below(z: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> tuple[int, int, float, float, float]:
+    """``(bl, bh, n0, s1, hv)`` at ``z = s + shift``: bins ``[0, bl)`` lie below ``_G_TINY`` (closed form
+    :math:`L = u - v/2` from the prefix sums: ``n0`` items, ``s1`` their summed centres, ``hv`` the summed
+    :math:`v/2`), bins ``[bh, nb)`` above ``_G_HUGE`` (:math:`L = 0`)."""
     half = 0.5 * _GB_WIDTH
-    z = s + shift
-    # bins [0, bl): u + half < _G_TINY on the whole bin, L = u - v/2 (prefix sums); bins [bh, nb): L = 0
     bl = min(max(int(math.ceil((_G_TINY - half - z - cen[0]) / _GB_WIDTH)), 0), nb)
     bh = min(max(int(math.floor((_G_HUGE + half - z - cen[0]) / _GB_WIDTH)) + 1, bl), nb)
     if bl < nb:
@@ -1050,14 +1053,39 @@ def _gb_h(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: 
         lp = mom[last, _GB_ORDER + 2]
         hi_ = max(lp, v)
         lse_ = hi_ + math.log1p(math.exp(min(lp, v) - hi_)) if hi_ > -np.inf else -np.inf
-    hv = 0.5 * math.exp(z + lse_)  # sum over those items of v / 2 (each v < e^{_G_TINY})
+    return bl, bh, n0, s1, 0.5 * math.exp(z + lse_)
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_h0(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray,
+           f: np.ndarray) -> float:
+    """:math:`h(s)` alone (a quadrature node): :func:`_gb_h`'s first value, bit for bit, with Taylor series two
+    orders shorter (no :math:`h', h''`)."""
+    z = s + shift
+    bl, bh, n0, s1, hv = _gb_below(z, cen, mom, nb)
+    h = n0 * z + s1 - hv
+    for b in range(bl, bh):
+        if mom[b, 0] == 0.0:
+            continue
+        _pl_taylor(z + cen[b], T, f, _GB_ORDER)
+        for q in range(_GB_ORDER - 1, -1, -1):
+            h += T[q] * (mom[b, q] * _FACT[q])
+    return h
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_h(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray,
+          f: np.ndarray) -> tuple[float, float, float]:
+    """:math:`h(s), h'(s), h''(s)` of a binned group, :math:`u_b = s + \\text{shift} + c_b`."""
+    z = s + shift
+    bl, bh, n0, s1, hv = _gb_below(z, cen, mom, nb)
     h = n0 * z + s1 - hv
     h1 = n0 - hv
     h2 = -hv
     for b in range(bl, bh):
         if mom[b, 0] == 0.0:
             continue
-        _pl_taylor(z + cen[b], T, f)  # between _G_TINY and _G_HUGE: L's Taylor series about the bin centre
+        _pl_taylor(z + cen[b], T, f, _GB_T)  # between _G_TINY and _G_HUGE: L's Taylor series about the bin centre
         for q in range(_GB_ORDER - 1, -1, -1):
             mq = mom[b, q] * _FACT[q]  # sum_i d_i^q
             h += T[q] * mq
@@ -1084,7 +1112,7 @@ def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) 
             break
         s = sn
     s0 = s
-    f0 = s0 - math.exp(s0) + _gb_h(s0, shift, cen, mom, nb, T, f)[0]
+    f0 = s0 - math.exp(s0) + _gb_h0(s0, shift, cen, mom, nb, T, f)
     sig = 1.0 / math.sqrt(-d2)
     if not (f0 + math.log(sig) + _LOG_SQRT_2PI < _G_SWITCH):
         return np.nan
