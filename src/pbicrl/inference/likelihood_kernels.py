@@ -1001,12 +1001,12 @@ def _gb_logsumexp(cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
     return m + math.log(acc)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=_FM)  # reassociated sums: 1.3x, h within 6e-14 relative
 def _pl_taylor(u: float, T: np.ndarray, f: np.ndarray, M: int) -> None:
     """``T[q] = L^(q)(u) / q!`` for ``q < M``, :math:`L(u) = \\log(1 - e^{-e^u})`, by series arithmetic:
     :math:`e^{-v e^d} = e^{-v} \\exp(g(d))` with :math:`g = -v (e^d - 1)`, then the logarithm of
     :math:`1 - e^{-v e^d}`. ``T`` and ``f`` are scratch of length >= ``M``; the orders below ``M`` do not depend on
-    ``M`` (bit for bit)."""
+    ``M``."""
     v = math.exp(u)
     for k in range(1, M):  # T holds k g_k = -v / (k-1)! until the log series overwrites it from below
         T[k] = -(v * _INV_FACT[k - 1])
@@ -1015,7 +1015,7 @@ def _pl_taylor(u: float, T: np.ndarray, f: np.ndarray, M: int) -> None:
         acc = 0.0
         for k in range(1, n + 1):
             acc += T[k] * f[n - k]
-        f[n] = acc / n
+        f[n] = acc * _INV_INT[n]
     ev = math.exp(-v)
     if v <= _LN2:
         D0 = -math.expm1(-v)
@@ -1023,13 +1023,14 @@ def _pl_taylor(u: float, T: np.ndarray, f: np.ndarray, M: int) -> None:
     else:
         D0 = 1.0 - ev
         T[0] = math.log1p(-ev)
+    iD0 = 1.0 / D0
     for n in range(1, M):
         f[n] = -ev * f[n]  # D_n, the series of 1 - e^{-v e^d} above order 0
     for n in range(1, M):  # y = log(D): y_n = (D_n - (1/n) sum_{k<n} k y_k D_{n-k}) / D_0
         acc = 0.0
         for k in range(1, n):
             acc += k * T[k] * f[n - k]
-        T[n] = (f[n] - acc / n) / D0
+        T[n] = (f[n] - acc * _INV_INT[n]) * iD0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -1059,8 +1060,8 @@ def _gb_below(z: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> tuple[int,
 @njit(cache=True, error_model="numpy")
 def _gb_h0(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray,
            f: np.ndarray) -> float:
-    """:math:`h(s)` alone (a quadrature node): :func:`_gb_h`'s first value, bit for bit, with Taylor series two
-    orders shorter (no :math:`h', h''`)."""
+    """:math:`h(s)` alone (a quadrature node): :func:`_gb_h`'s first value (bit for bit) with Taylor series two
+    orders shorter, as no :math:`h', h''` are needed."""
     z = s + shift
     bl, bh, n0, s1, hv = _gb_below(z, cen, mom, nb)
     h = n0 * z + s1 - hv
