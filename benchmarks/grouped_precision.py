@@ -81,10 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         ref = _reference(x, K)
         got = {"per_item": K.group_term(x, np.empty((2, x.size)))}
         if x.size >= K._GB_MIN:
-            cen, mom, nb = K._gb_moments(x, np.arange(x.size))
+            cen, mom, nb, sp = K._gb_moments(x, np.arange(x.size))
             if nb > 0:
-                term = K._gb_direct(x.size, 0.0, cen, mom, nb)
-                got["binned"] = K._gb_comp(0.0, cen, mom, nb) if math.isnan(term) else term
+                got["binned"] = K._gb_term(x.size, 0.0, cen, mom, nb, sp, np.empty((3, x.size)))
         for path, g in got.items():
             if not (math.isfinite(g) and math.isfinite(ref)):
                 if g != ref:

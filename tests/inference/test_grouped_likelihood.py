@@ -262,12 +262,12 @@ def test_large_groups_binned_match_the_per_item_terms(scale):
     n = 12_000
     for shift in (-3.0, 2.0, 25.0):
         a = rng.normal(size=n) * scale + rng.normal()
-        cen, mom, nb = _kernels._gb_moments(a, np.arange(n))
+        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
         assert nb > 0  # binning pays for these spreads
-        assert _kernels._gb_logsumexp(cen, mom, nb) == pytest.approx(np.logaddexp.reduce(a), rel=1e-13)
+        assert _kernels._gb_logsumexp(cen, mom, nb, sp) == pytest.approx(np.logaddexp.reduce(a), rel=1e-13)
         log_lam = np.logaddexp.reduce(a) + shift
         expect = _kernels.group_term(a - log_lam, np.empty((4, n)))
-        got = _kernels._gb_direct(n, -log_lam, cen, mom, nb)
+        got = _kernels._gb_direct(n, -log_lam, cen, mom, nb, sp, np.empty((3, n)))
         assert got == pytest.approx(expect, rel=1e-12)
     # three groups, two of them binned: the likelihood is the sum of the per-item terms
     a = rng.normal(size=3 * n) * scale
@@ -293,12 +293,12 @@ def test_large_groups_near_certain_use_the_binned_complement(scale):
     seen = 0
     for shift in (4.0, 8.0, 14.0, 25.0):
         a = rng.normal(size=n) * scale
-        cen, mom, nb = _kernels._gb_moments(a, np.arange(n))
+        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
         assert nb > 0
         log_lam = a.min() - shift
-        assert np.isnan(_kernels._gb_direct(n, -log_lam, cen, mom, nb))  # the complement's case
+        assert np.isnan(_kernels._gb_direct(n, -log_lam, cen, mom, nb, sp, np.empty((3, n))))  # the complement's case
         expect = _kernels.group_term(a - log_lam, np.empty((4, n)))
-        got = _kernels._gb_comp(-log_lam, cen, mom, nb)
+        got = _kernels._gb_comp(-log_lam, cen, mom, nb, sp, np.empty((3, n)))
         assert got == pytest.approx(expect, rel=1e-12, abs=0.0)
         seen += expect < -1e-300
     assert seen >= 2  # not only terms that round to 0
@@ -318,6 +318,32 @@ def test_large_groups_keep_the_per_item_path_when_binning_does_not_pay():
     assert _kernels._gb_moments(a, np.arange(n))[2] == 0
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_groups_with_dense_and_sparse_bins_match_the_per_item_terms(seed):
+    """A dense cluster and a thin spread (the shipped point mass's second group: ~300 returns over 27 nats): the
+    dense bins carry moments, the other items are summed one by one; equal to the per-item terms to 1e-12, through
+    the direct and the complement form, and the group's logsumexp to 1e-13."""
+    rng = np.random.default_rng(seed)
+    a = np.concatenate([rng.normal(size=250) * 0.15, rng.uniform(-15.0, 12.0, size=120)])
+    n = a.size
+    cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
+    assert nb > 0 and 100 <= sp.size < n  # binned, with sparse items beside the bins
+    assert mom[:, 0].sum() + sp.size == n
+    assert _kernels._gb_logsumexp(cen, mom, nb, sp) == pytest.approx(np.logaddexp.reduce(a), rel=1e-13)
+    forms = set()
+    for shift in (-45.0, -35.0, -4.0, 2.0, 8.0):
+        log_lam = np.logaddexp.reduce(a) + shift
+        expect = _kernels.group_term(a - log_lam, np.empty((4, n)))
+        got = _kernels._gb_direct(n, -log_lam, cen, mom, nb, sp, np.empty((3, n)))
+        if np.isnan(got):
+            forms.add("complement")
+            got = _kernels._gb_comp(-log_lam, cen, mom, nb, sp, np.empty((3, n)))
+        else:
+            forms.add("direct")
+        assert got == pytest.approx(expect, rel=1e-12, abs=1e-300)
+    assert forms == {"direct", "complement"}
+
+
 @pytest.mark.parametrize("n", [128, 316, 1500])
 def test_small_concentrated_groups_binned_match_the_per_item_terms(n):
     """From _GB_MIN = 64 items a group whose returns are concentrated (the shipped point mass: 316 items within 0.1)
@@ -326,14 +352,14 @@ def test_small_concentrated_groups_binned_match_the_per_item_terms(n):
     rng = np.random.default_rng(n)
     for spread, shift in ((0.02, -2.0), (0.3, 1.0), (0.02, 12.0)):
         a = rng.normal(size=n) * spread + rng.normal()
-        cen, mom, nb = _kernels._gb_moments(a, np.arange(n))
+        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
         if spread == 0.02:
             assert nb > 0  # binning pays for a tight group
         elif nb == 0:
             continue  # too spread for its size: the per-item path (the cost rule of _gb_moments)
         log_lam = np.logaddexp.reduce(a) + shift
         expect = _kernels.group_term(a - log_lam, np.empty((4, n)))
-        got = _kernels._gb_direct(n, -log_lam, cen, mom, nb)
+        got = _kernels._gb_direct(n, -log_lam, cen, mom, nb, sp, np.empty((3, n)))
         if np.isnan(got):
-            got = _kernels._gb_comp(-log_lam, cen, mom, nb)
+            got = _kernels._gb_comp(-log_lam, cen, mom, nb, sp, np.empty((3, n)))
         assert got == pytest.approx(expect, rel=1e-12)

@@ -756,7 +756,8 @@ def _pl_h_at(delta: float, rho: float, u0: np.ndarray, b: np.ndarray, n_mid: int
 
 def _h_at(s0: float, delta: float, hargs: tuple) -> float:
     r""":math:`h(s_0 + \delta)` of a group: per item (``hargs`` = the 5 arguments of :func:`_pl_h_at` after
-    :math:`\rho`) or from binned moments (the 6 arguments of :func:`_gb_h0` after ``s``). Compiled only."""
+    :math:`\rho`) or binned (the 6 arguments of :func:`_gb_h0` after ``s``, then those 5 for the items of the bins
+    too sparse to bin). Compiled only."""
     raise NotImplementedError("compiled only")
 
 
@@ -768,7 +769,8 @@ def _h_at_impl(s0, delta, hargs):  # Numba types, at compile time
         return per_item
 
     def binned(s0, delta, hargs):
-        return _gb_h0(s0 + delta, *hargs)
+        return (_gb_h0(s0 + delta, hargs[0], hargs[1], hargs[2], hargs[3], hargs[4], hargs[5])
+                + _pl_h_at(delta, math.exp(delta), hargs[6], hargs[7], hargs[8], hargs[9], hargs[10]))
     return binned
 
 
@@ -925,9 +927,14 @@ def group_term(x: np.ndarray, buf: np.ndarray) -> float:
 # use L = u - v/2 in closed form (sum_i e^{d_i} = sum_q M_bq); bins far above contribute nothing. The same moments
 # give the group's logsumexp for Lambda (sum_i e^{a_i} = sum_b e^{c_b} sum_q M_bq). A node then costs O(bins Q^2)
 # instead of O(n): about 100 bins for returns spread over 10 nats. Used for the direct form (_gb_direct) and, when
-# P_k is close to 1, the complement form (_gb_comp); returns spread too thinly over the grid and non-finite returns
-# use the per-item path.
+# P_k is close to 1, the complement form (_gb_comp). A bin's Taylor series costs about as much as _GB_DENSE items of
+# the per-item path, so a group may bin only its bins of at least _GB_DENSE items and sum the items of the sparser
+# bins one by one beside them (since 2026-12-06: the shipped groups spread over ~27 nats had gone per item as a whole);
+# _gb_moments picks that, every bin binned, or the per-item path by a cost rule. Groups spread over more than 8 n
+# bins or with non-finite returns use the per-item path.
 _GB_MIN = 64  # below this a bin rarely pays; _gb_moments decides by its own cost rule above it
+_GB_BIN_COST = 10.0  # a bin's Taylor series at a node costs about as much as this many items per item (measured)
+_GB_DENSE = 10  # items in a bin from which its Taylor series is cheaper than the items one by one
 _GB_WIDTH = 0.1
 _GB_ORDER = 10  # 12 until 2026-12-05: 1.15x slower nodes and binning for a truncation error below 1e-17
 _GB_T = _GB_ORDER + 2  # Taylor coefficients needed for h'' (orders 0 .. _GB_ORDER + 1)
@@ -937,29 +944,61 @@ _INV_INT = np.array([0.0] + [1.0 / q for q in range(1, _GB_T + 1)])
 
 
 @njit(cache=True, error_model="numpy")
-def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """``(centres, moments, n_bins)`` of one group's returns, or ``n_bins = 0`` when binning does not pay (too few
-    items per bin, non-finite returns): the caller then uses the per-item path.
+def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """``(centres, moments, n_bins, sparse)`` of one group's returns: every bin carries its items' moments, or (when
+    the cost rule prefers it) only the bins of at least ``_GB_DENSE`` items, and the returns of the other items are
+    ``sparse``; ``n_bins = 0`` when binning does not pay (the cost rule, returns spread over more than 8 n bins,
+    non-finite returns): the caller then uses the per-item path.
 
     ``moments`` has ``_GB_ORDER + 3`` columns: the moments, then the exclusive prefix sums over the bins below of
     :math:`M_0`, :math:`M_0 c_b + M_1` and (as a logarithm) :math:`e^{c_b} \\sum_q M_{bq}`: the closed form of the
     bins below ``_G_TINY`` at any node in O(1) (:func:`_gb_h`)."""
     n = items.size
     lo, hi = _extend_range(a, items, np.inf, -np.inf)
+    none = (np.zeros(0), np.zeros((0, _GB_ORDER + 3)), 0, np.zeros(0))
     if not (hi - lo < np.inf):
-        return np.zeros(0), np.zeros((0, _GB_ORDER)), 0
+        return none
     nb = int((hi - lo) / _GB_WIDTH) + 1
-    # per node a bin between _G_TINY and _G_HUGE costs about 30 items' evaluations (the others are O(1) in all)
-    if 30.0 * min(nb, (_G_HUGE - _G_TINY) / _GB_WIDTH + 2.0) > n or nb > 8 * n:
-        return np.zeros(0), np.zeros((0, _GB_ORDER + 3)), 0
+    if nb > 8 * n:
+        return none
+    inv_w = 1.0 / _GB_WIDTH
+    count = np.zeros(nb, np.int64)
+    for r in range(n):
+        count[min(int((a[items[r]] - lo) * inv_w), nb - 1)] += 1
+    n_full = 0
+    n_dense = 0
+    n_sparse = 0
+    for b in range(nb):
+        if count[b] >= _GB_DENSE:
+            n_dense += 1
+        elif count[b] > 0:
+            n_full += 1
+            n_sparse += count[b]
+    n_full += n_dense
+    # cost per node in item evaluations: every bin binned (only those within a node's window of _G_TINY .. _G_HUGE
+    # cost), the dense ones binned and the rest per item, or all per item
+    window = (_G_HUGE - _G_TINY) / _GB_WIDTH + 2.0
+    all_bins = _GB_BIN_COST * min(n_full, window)
+    hybrid = _GB_BIN_COST * min(n_dense, window) + n_sparse
+    if min(all_bins, hybrid) >= n:
+        return none
+    dense = _GB_DENSE
+    if all_bins <= hybrid:
+        dense = 1
+        n_sparse = 0
     cen = np.empty(nb)
     for b in range(nb):
         cen[b] = lo + (b + 0.5) * _GB_WIDTH
     mom = np.zeros((nb, _GB_ORDER + 3))
-    inv_w = 1.0 / _GB_WIDTH
+    sparse = np.empty(n_sparse)
+    k = 0
     for r in range(n):
         v = a[items[r]]
         b = min(int((v - lo) * inv_w), nb - 1)
+        if count[b] < dense:
+            sparse[k] = v
+            k += 1
+            continue
         d = v - cen[b]
         p = 1.0
         for q in range(_GB_ORDER):
@@ -981,16 +1020,19 @@ def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarra
             v = cen[b] + math.log(se)
             hi_ = max(lpe, v)
             lpe = hi_ + math.log1p(math.exp(min(lpe, v) - hi_))
-    return cen, mom, nb
+    return cen, mom, nb, sparse
 
 
 @njit(cache=True, error_model="numpy")
-def _gb_logsumexp(cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
-    """:math:`\\log\\sum_i e^{a_i}` of a binned group: :math:`\\sum_i e^{d_i} = \\sum_q M_{bq}` per bin."""
+def _gb_logsumexp(cen: np.ndarray, mom: np.ndarray, nb: int, sparse: np.ndarray) -> float:
+    """:math:`\\log\\sum_i e^{a_i}` of a binned group: :math:`\\sum_i e^{d_i} = \\sum_q M_{bq}` per dense bin, the
+    sparse items one by one."""
     m = -np.inf
     for b in range(nb):
         if mom[b, 0] > 0.0:
             m = max(m, cen[b])
+    for i in range(sparse.size):
+        m = max(m, sparse[i])
     acc = 0.0
     for b in range(nb):
         if mom[b, 0] > 0.0:
@@ -998,6 +1040,8 @@ def _gb_logsumexp(cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
             for q in range(_GB_ORDER - 1, -1, -1):
                 se += mom[b, q]
             acc += math.exp(cen[b] - m) * se
+    for i in range(sparse.size):
+        acc += math.exp(sparse[i] - m)
     return m + math.log(acc)
 
 
@@ -1096,64 +1140,102 @@ def _gb_h(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: 
 
 
 @njit(cache=True, error_model="numpy")
-def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
+def _gb_sums(s: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, T: np.ndarray, f: np.ndarray,
+             xs: np.ndarray) -> tuple[float, float, float]:
+    """:math:`h, h', h''` at ``s`` of a binned group: :func:`_gb_h` plus the sparse items ``xs`` (shifted)."""
+    h, h1, h2 = _gb_h(s, shift, cen, mom, nb, T, f)
+    if xs.size > 0:
+        hs, hs1, hs2 = _pl_sums(s, xs)
+        h += hs
+        h1 += hs1
+        h2 += hs2
+    return h, h1, h2
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_integral(comp: bool, s0: float, sig: float, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int,
+                 xs: np.ndarray, buf: np.ndarray, T: np.ndarray, f: np.ndarray) -> float:
+    """Log of the direct (``comp`` False) or complement integral of a binned group about its mode ``s0``:
+    :func:`_pl_integral` with :math:`h` from the dense bins' moments and the sparse items ``xs``."""
+    n_mid, n_low, sum_low = _pl_prepare(xs, s0, buf[0], buf[1])
+    h0 = _gb_h0(s0, shift, cen, mom, nb, T, f) + _pl_h_at(0.0, 1.0, buf[0], buf[1], n_mid, n_low, sum_low)
+    if comp:
+        if not h0 < 0.0:
+            return -np.inf
+        f0 = s0 - math.exp(s0) + math.log(-math.expm1(h0))
+        beta, gamma = _G_MAP_COMP
+    else:
+        f0 = s0 - math.exp(s0) + h0
+        beta, gamma = _G_MAP_DIRECT
+    return f0 + math.log(sig * _trapezoid(comp, s0, sig, f0, beta, gamma, _G_STEP, _G_STEP_MAX, _G_ACCEPT,
+                                          (shift, cen, mom, nb, T, f, buf[0], buf[1], n_mid, n_low, sum_low)))
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_direct(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, sparse: np.ndarray,
+               buf: np.ndarray) -> float:
     """:math:`\\log P_k` by the direct form on binned moments (:func:`_pl_mode` and :func:`_pl_integral` with
-    :math:`h` from :func:`_gb_h`), or NaN when the direct form is not the right one (``P_k`` close to 1)."""
+    :math:`h` from :func:`_gb_h` and the sparse items), or NaN when the direct form is not the right one (``P_k``
+    close to 1). ``buf``: scratch of shape (3, >= len(sparse))."""
     T = np.empty(_GB_T)
     f = np.empty(_GB_T)
+    xs = buf[2, :sparse.size]
+    for i in range(sparse.size):
+        xs[i] = sparse[i] + shift
     lo = -1.0
     hi = math.log(n + 1.0) + 1.0
     s = 0.5 * math.log(n + 1.0)
     d2 = -1.0
     for _ in range(200):
-        h, h1, h2 = _gb_h(s, shift, cen, mom, nb, T, f)
+        h, h1, h2 = _gb_sums(s, shift, cen, mom, nb, T, f, xs)
         d1, d2 = _direct_slopes(s, h1, h2)
         sn, lo, hi, done = _newton_step(s, d1, d2, lo, hi)
         if done:
             break
         s = sn
     s0 = s
-    f0 = s0 - math.exp(s0) + _gb_h0(s0, shift, cen, mom, nb, T, f)
     sig = 1.0 / math.sqrt(-d2)
+    f0 = s0 - math.exp(s0) + h
     if not (f0 + math.log(sig) + _LOG_SQRT_2PI < _G_SWITCH):
         return np.nan
-    beta, gamma = _G_MAP_DIRECT
-    lp = f0 + math.log(sig * _trapezoid(False, s0, sig, f0, beta, gamma, _G_STEP, _G_STEP_MAX, _G_ACCEPT,
-                                         (shift, cen, mom, nb, T, f)))
+    lp = _gb_integral(False, s0, sig, shift, cen, mom, nb, xs, buf, T, f)
     return lp if lp <= math.log(0.9) else np.nan
 
 
 @njit(cache=True, error_model="numpy")
-def _gb_comp(shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
+def _gb_comp(shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, sparse: np.ndarray, buf: np.ndarray) -> float:
     """:math:`\\log P_k` by the complement form on binned moments, for a group that :func:`_gb_direct` sent on
     (``P_k`` close to 1); NaN when the complement is not the right form either (the caller goes per item).
 
     The same steps as the per-item path (:func:`_pl_mode` with ``comp``, :func:`_pl_integral`), with
-    :math:`h, h', h''` from :func:`_gb_h`. Near the complement's mode the items' :math:`v = e^{u}` are moderate, where
-    the bins' Taylor series converge fast; the far nodes (large :math:`v`, slower series) carry less than
-    :math:`e^{-30}` of the integral. Checked against the per-item path to 1e-12 relative (the tests).
+    :math:`h, h', h''` from :func:`_gb_h` and the sparse items. Near the complement's mode the items'
+    :math:`v = e^{u}` are moderate, where the bins' Taylor series converge fast; the far nodes (large :math:`v`,
+    slower series) carry less than :math:`e^{-30}` of the integral. Checked against the per-item path to 1e-12
+    relative (the tests).
     """
     T = np.empty(_GB_T)
     f = np.empty(_GB_T)
     half = 0.5 * _GB_WIDTH
-    first = -1
-    last = -1
+    xmin = np.inf
+    xmax = -np.inf
     for b in range(nb):
         if mom[b, 0] > 0.0:
-            last = b
-            if first < 0:
-                first = b
-    if first < 0:
+            xmax = cen[b] + half + shift
+            xmin = min(xmin, cen[b] - half + shift)
+    xs = buf[2, :sparse.size]
+    for i in range(sparse.size):
+        xs[i] = sparse[i] + shift
+        xmin = min(xmin, xs[i])
+        xmax = max(xmax, xs[i])
+    if not xmin < np.inf:
         return np.nan
-    xmin = cen[first] - half + shift
-    xmax = cen[last] + half + shift
     lo = min(-xmax - 3.0, -0.5)
     hi = 0.0
     s = min(max(-xmin, lo), hi)
     c0 = -np.inf
     d2 = -1.0
     for _ in range(200):
-        h, h1, h2 = _gb_h(s, shift, cen, mom, nb, T, f)
+        h, h1, h2 = _gb_sums(s, shift, cen, mom, nb, T, f, xs)
         c0, d1, d2 = _comp_from_h(s, h, h1, h2)
         sn, lo, hi, done = _newton_step(s, d1, d2, lo, hi)
         if done:
@@ -1161,12 +1243,21 @@ def _gb_comp(shift: float, cen: np.ndarray, mom: np.ndarray, nb: int) -> float:
         s = sn
     if c0 == -np.inf:
         return 0.0  # 1 - P underflows: log P = -(1 - P) rounds to 0
-    s0 = s
     sig = 1.0 / math.sqrt(-d2) if d2 < 0.0 else 1.0
-    beta, gamma = _G_MAP_COMP
-    prev = _trapezoid(True, s0, sig, c0, beta, gamma, _G_STEP, _G_STEP_MAX, _G_ACCEPT, (shift, cen, mom, nb, T, f))
-    lq = c0 + math.log(sig * prev)
+    lq = _gb_integral(True, s, sig, shift, cen, mom, nb, xs, buf, T, f)
+    if lq == -np.inf:
+        return 0.0
     return math.log1p(-math.exp(lq)) if lq <= math.log(0.5) else np.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _gb_term(n: int, shift: float, cen: np.ndarray, mom: np.ndarray, nb: int, sparse: np.ndarray,
+             buf: np.ndarray) -> float:
+    """:math:`\\log P_k` of a binned group: the direct form, else the complement; NaN: use the per-item path."""
+    term = _gb_direct(n, shift, cen, mom, nb, sparse, buf)
+    if term != term:
+        term = _gb_comp(shift, cen, mom, nb, sparse, buf)
+    return term
 
 
 @njit(cache=True, error_model="numpy")
@@ -1199,17 +1290,19 @@ def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: n
     # large groups: binned moments (see above), computed once and used for Lambda and for the group's own term
     slot = np.full(K, -1, np.int64)
     cens = [np.zeros(0)]
-    moms = [np.zeros((0, _GB_ORDER))]
+    moms = [np.zeros((0, _GB_ORDER + 3))]
+    sps = [np.zeros(0)]
     for k in range(K):
         if goff[k + 1] - goff[k] >= _GB_MIN:
-            cen, mom, nb = _gb_moments(a, gitems[goff[k]:goff[k + 1]])
+            cen, mom, nb, sp = _gb_moments(a, gitems[goff[k]:goff[k + 1]])
             if nb > 0:
                 slot[k] = len(cens)
                 cens.append(cen)
                 moms.append(mom)
+                sps.append(sp)
     for l in range(1, K):
         if slot[l] >= 0:
-            lse[l] = _gb_logsumexp(cens[slot[l]], moms[slot[l]], cens[slot[l]].size)
+            lse[l] = _gb_logsumexp(cens[slot[l]], moms[slot[l]], cens[slot[l]].size, sps[slot[l]])
         else:
             lse[l] = _logsumexp_at(a, gitems[goff[l]:goff[l + 1]])
     additive = gmarg.shape[0] == 0
@@ -1243,9 +1336,7 @@ def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: n
                 log_lam = m + math.log(acc)
         n = goff[k + 1] - goff[k]
         if slot[k] >= 0 and log_lam == log_lam and abs(log_lam) < np.inf:
-            term = _gb_direct(n, -log_lam, cens[slot[k]], moms[slot[k]], cens[slot[k]].size)
-            if term != term:  # P_k close to 1
-                term = _gb_comp(-log_lam, cens[slot[k]], moms[slot[k]], cens[slot[k]].size)
+            term = _gb_term(n, -log_lam, cens[slot[k]], moms[slot[k]], cens[slot[k]].size, sps[slot[k]], gbuf)
             if term == term:
                 total += term
                 continue
