@@ -944,11 +944,13 @@ _INV_INT = np.array([0.0] + [1.0 / q for q in range(1, _GB_T + 1)])
 
 
 @njit(cache=True, error_model="numpy")
-def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+def _gb_moments(a: np.ndarray, items: np.ndarray, split: bool = True) -> tuple[np.ndarray, np.ndarray, int,
+                                                                              np.ndarray]:
     """``(centres, moments, n_bins, sparse)`` of one group's returns: every bin carries its items' moments, or (when
     the cost rule prefers it) only the bins of at least ``_GB_DENSE`` items, and the returns of the other items are
     ``sparse``; ``n_bins = 0`` when binning does not pay (the cost rule, returns spread over more than 8 n bins,
-    non-finite returns): the caller then uses the per-item path.
+    non-finite returns): the caller then uses the per-item path. ``split`` False: never sparse items (a group whose
+    moments serve only its logsumexp).
 
     ``moments`` has ``_GB_ORDER + 3`` columns: the moments, then the exclusive prefix sums over the bins below of
     :math:`M_0`, :math:`M_0 c_b + M_1` and (as a logarithm) :math:`e^{c_b} \\sum_q M_{bq}`: the closed form of the
@@ -961,19 +963,28 @@ def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarra
     nb = int((hi - lo) / _GB_WIDTH) + 1
     if nb > 8 * n:
         return none
+    cen = np.empty(nb)
+    for b in range(nb):
+        cen[b] = lo + (b + 0.5) * _GB_WIDTH
+    mom = np.zeros((nb, _GB_ORDER + 3))
     inv_w = 1.0 / _GB_WIDTH
-    count = np.zeros(nb, np.int64)
     for r in range(n):
-        count[min(int((a[items[r]] - lo) * inv_w), nb - 1)] += 1
+        v = a[items[r]]
+        b = min(int((v - lo) * inv_w), nb - 1)
+        d = v - cen[b]
+        p = 1.0
+        for q in range(_GB_ORDER):
+            mom[b, q] += p
+            p *= d * _INV_INT[q + 1]
     n_full = 0
     n_dense = 0
     n_sparse = 0
     for b in range(nb):
-        if count[b] >= _GB_DENSE:
+        if mom[b, 0] >= _GB_DENSE:
             n_dense += 1
-        elif count[b] > 0:
+        elif mom[b, 0] > 0.0:
             n_full += 1
-            n_sparse += count[b]
+            n_sparse += int(mom[b, 0])
     n_full += n_dense
     # cost per node in item evaluations: every bin binned (only those within a node's window of _G_TINY .. _G_HUGE
     # cost), the dense ones binned and the rest per item, or all per item
@@ -982,28 +993,21 @@ def _gb_moments(a: np.ndarray, items: np.ndarray) -> tuple[np.ndarray, np.ndarra
     hybrid = _GB_BIN_COST * min(n_dense, window) + n_sparse
     if min(all_bins, hybrid) >= n:
         return none
-    dense = _GB_DENSE
-    if all_bins <= hybrid:
-        dense = 1
+    # taking the sparse items out is one more pass over the group: worth it from ~100 nodes x the saving per node
+    if not split or all_bins - hybrid <= n / 400.0:
         n_sparse = 0
-    cen = np.empty(nb)
-    for b in range(nb):
-        cen[b] = lo + (b + 0.5) * _GB_WIDTH
-    mom = np.zeros((nb, _GB_ORDER + 3))
     sparse = np.empty(n_sparse)
-    k = 0
-    for r in range(n):
-        v = a[items[r]]
-        b = min(int((v - lo) * inv_w), nb - 1)
-        if count[b] < dense:
-            sparse[k] = v
-            k += 1
-            continue
-        d = v - cen[b]
-        p = 1.0
-        for q in range(_GB_ORDER):
-            mom[b, q] += p
-            p *= d * _INV_INT[q + 1]
+    if n_sparse > 0:  # the sparse bins' items go one by one: out of the moments
+        k = 0
+        for r in range(n):
+            v = a[items[r]]
+            b = min(int((v - lo) * inv_w), nb - 1)
+            if mom[b, 0] < _GB_DENSE:
+                sparse[k] = v
+                k += 1
+        for b in range(nb):
+            if mom[b, 0] < _GB_DENSE:
+                mom[b, :_GB_ORDER] = 0.0
     p0 = 0.0
     p1 = 0.0
     lpe = -np.inf
@@ -1294,7 +1298,7 @@ def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: n
     sps = [np.zeros(0)]
     for k in range(K):
         if goff[k + 1] - goff[k] >= _GB_MIN:
-            cen, mom, nb, sp = _gb_moments(a, gitems[goff[k]:goff[k + 1]])
+            cen, mom, nb, sp = _gb_moments(a, gitems[goff[k]:goff[k + 1]], k < K - 1)
             if nb > 0:
                 slot[k] = len(cens)
                 cens.append(cen)
