@@ -34,7 +34,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ALL_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, NamedTuple, Self, Sequence
 
@@ -932,7 +932,7 @@ def _run_round(tasks: list[tuple[Any, ...]], pool: Any, counter: Any, bar: Any, 
 def _collect(futures: list[Any], counter: Any, bar: Any, last: int) -> list[Any]:
     """Wait for the chains' futures, moving the progress bar by the workers' shared counter (from ``last``)."""
     while not all(f.done() for f in futures):
-        time.sleep(0.1)
+        wait(futures, timeout=0.1, return_when=ALL_COMPLETED)  # back at once when the last chain ends: rounds are short
         v = counter.value
         if v != last:
             if bar is not None:
