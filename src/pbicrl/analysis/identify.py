@@ -1130,7 +1130,8 @@ def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64],
     obj = np.zeros(lp.n_var)
     obj[:p] = -gbar
     bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
-    x = lp.solve(obj, bnd, homogeneous=True)
+    # a slot of its own, as every LP here: with highspy no scipy.optimize (0.6-0.8 s of import before every infer)
+    x = lp.solve(obj, bnd, homogeneous=True, slot="improving")
     tick.step()
     return x[:p] if x is not None and float(gbar @ x[:p]) > _T_MIN else None
 
@@ -1397,7 +1398,7 @@ def identify(
 
     # ---- separating set S_alpha and the separation scales
     zero = np.zeros(nv)
-    x0 = lp.solve(zero, w_bounds(), homogeneous=False)
+    x0 = lp.solve(zero, w_bounds(), homogeneous=False, slot="feasible")  # a slot: highspy when installed
     separable = x0 is not None
     rng: dict[int, tuple[float, float]] = {}
     tick.close()
