@@ -530,6 +530,8 @@ def ranked_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, moff: np.
 # 2026-12-05 (_G_ACCEPT 1e-8, the complement's stretch gamma 0.8: 1.3-1.4x fewer nodes on the shipped data),
 # benchmarks/grouped_precision.py over 4,000 such groups: 99.9% within 2e-13 relative, worst 1.6e-11 relative
 # (a near-certain order, log P_k = -4e-5: 6e-16 nats); worst absolute error 3e-8 nats at log P_k = -3e5 (rounding).
+# The binned rule (dense bins and sparse items, 2026-12-06) on the 1,812 of them it takes: 99.9% within 6e-14
+# relative, the same worst group, worst absolute error 1.4e-7 nats (|log P_k| ~ 1e6: rounding).
 # Typical cost: 4-6 Newton steps and ~36 nodes, each one exp (or expm1) per item: O(n Q).
 
 _LN2 = math.log(2.0)
