@@ -935,7 +935,7 @@ def group_term(x: np.ndarray, buf: np.ndarray) -> float:
 # _gb_moments picks that, every bin binned, or the per-item path by a cost rule. Groups spread over more than 8 n
 # bins or with non-finite returns use the per-item path.
 _GB_MIN = 64  # below this a bin rarely pays; _gb_moments decides by its own cost rule above it
-_GB_BIN_COST = 10.0  # a bin's Taylor series at a node costs about as much as this many items per item (measured)
+_GB_BIN_COST = 10.0  # a bin's Taylor series at a node costs about as much as this many items of the per-item path
 _GB_DENSE = 10  # items in a bin from which its Taylor series is cheaper than the items one by one
 _GB_WIDTH = 0.1
 _GB_ORDER = 10  # 12 until 2026-12-05: 1.15x slower nodes and binning for a truncation error below 1e-17
