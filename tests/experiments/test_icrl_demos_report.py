@@ -193,6 +193,18 @@ def test_report_on_synthetic_runs(tmp_path):
     assert "![halfcheetah](figures/icrl_halfcheetah.png)" in md
 
 
+def test_report_names_a_started_run_without_progress(tmp_path):
+    """A run directory with nothing recorded yet is listed as started, not as 'at None steps'."""
+    runs = tmp_path / "runs"
+    _fake_seed(runs / "halfcheetah" / "ppo" / "seed0", [[(1.0, 1.0, 0)]])
+    (runs / "halfcheetah" / "ppo_lag_true" / "seed0").mkdir(parents=True)
+    (runs / "halfcheetah" / "ppo_lag_true" / "seed0" / "config.json").write_text("{}")
+    res = build_report(runs, tmp_path / "out", tasks=["halfcheetah"], seeds_planned=1)
+    assert res["in_progress"] == [{"task": "halfcheetah", "method": "ppo_lag_true", "seed": "seed0", "steps": None}]
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "halfcheetah / ppo_lag_true / seed0 started, no progress recorded yet" in md and "None" not in md
+
+
 def test_report_refuses_bad_input(tmp_path):
     with pytest.raises(ValueError, match="runs: .* is not a directory"):
         build_report(tmp_path / "none", tmp_path / "out")

@@ -226,7 +226,9 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
         lines += ["No row is missing.", ""]
     if res["in_progress"]:
         lines += ["**Runs still training** (not counted): " + "; ".join(
-            f"{r['task']} / {r['method']} / {r['seed']} at {r['steps']} steps" for r in res["in_progress"]) + ".", ""]
+            f"{r['task']} / {r['method']} / {r['seed']} " + (f"at {r['steps']} steps" if r["steps"] is not None
+                                                             else "started, no progress recorded yet")
+            for r in res["in_progress"]) + ".", ""]
     header = ("| task | method | seeds | steps | violation rate | feasible reward | reward | train violation rate | "
               "train feasible reward | wall time per seed (h) |")
     lines += [header, "|---|---|---|---|---|---|---|---|---|---|"]
