@@ -363,3 +363,46 @@ def test_small_concentrated_groups_binned_match_the_per_item_terms(n):
         if np.isnan(got):
             got = _kernels._gb_comp(-log_lam, cen, mom, nb, sp, np.empty((3, n)))
         assert got == pytest.approx(expect, rel=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_grouped_bound_is_above_the_likelihood(seed):
+    """The tangent-line bound the sampler screens death moves with (``grouped_loglik_bound``) is never below the
+    exact log-likelihood: groups of 2 to 3,000 (per item, binned, dense and sparse bins), margin matrices and additive
+    margins, returns spread from 0.01 to 200 nats, near-certain to near-impossible orders."""
+    rng = np.random.default_rng(seed)
+    for _ in range(12):
+        K = int(rng.integers(2, 6))
+        sizes = rng.integers(2, 3000 if rng.random() < 0.4 else 120, size=K)
+        group = np.repeat(np.arange(1, K + 1), sizes)
+        spread = 10.0 ** rng.uniform(-2, 2.3)
+        a = rng.normal(size=group.size) * spread - (group - 1) * rng.uniform(-3.0, 30.0)
+        if rng.random() < 0.3:
+            a[rng.integers(group.size)] += 50.0 * spread  # an outlier: sparse bins
+        margins = None if rng.random() < 0.5 else list(rng.uniform(0.0, 5.0, size=K - 1))
+        lik = _grouped(a, group, margins)
+        kb = lik.kernel_bundle()
+        exact = lik.from_scaled_returns(a)
+        b = _kernels.grouped_loglik_bound(a, kb.gitems, kb.goff, kb.gmarg, kb.gbuf, kb.moff)
+        assert b >= exact, (K, sizes, spread, margins)
+        assert b <= 0.0
+
+
+def test_death_screen_leaves_the_default_chain_unchanged():
+    """The grouped likelihood's death moves are screened by that bound (fewer exact evaluations): the draws equal
+    those recorded before the screen existed (tests/data/screen_reference.npz, 2 chains x 3,000 iterations, seed
+    11). Regenerate that file only with a change meant to change the default sampler's chains."""
+    from pathlib import Path
+
+    import pbicrl
+
+    ref = np.load(Path(__file__).parent.parent / "data" / "screen_reference.npz")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for data in ("point_mass", "example"):
+            p = pbicrl.infer(data, iterations=3000, chains=2, seed=11, progress=False, p_joint=0.3)
+            assert np.array_equal(np.asarray(p.indicators, dtype=np.int8), ref[f"{data}_c"])
+            assert np.array_equal(np.asarray(p.penalty_weights), ref[f"{data}_w"])
+            assert np.array_equal(np.asarray(p.log_likelihood), ref[f"{data}_ll"])
+            if data == "point_mass":  # deaths of in_orange and in_red are screened, not evaluated
+                assert np.all(p.counts[:, 4] < 0.92 * 3000)

@@ -28,9 +28,9 @@ from numba.core.dispatcher import Dispatcher
 
 from pbicrl.inference import codes, likelihood_kernels
 from pbicrl.inference.codes import (C_EVALS, C_FLIP_ACC, C_FLIP_PROP, C_T_ACC, C_T_PROP, C_W_ACC, C_W_PROP,
-                                    LIK_PAIRWISE, MODE_AUTHORS, MODE_BPL, MODE_PAPER, MODE_PBICRL, MOVE_FLIP,
-                                    MOVE_JOINT, MOVE_NONE, MOVE_PARAMETER, MOVE_WEIGHT)
-from pbicrl.inference.likelihood_kernels import LikelihoodArrays, loglik, pairs_loglik_bound
+                                    LIK_GROUPED, LIK_PAIRWISE, MODE_AUTHORS, MODE_BPL, MODE_PAPER, MODE_PBICRL,
+                                    MOVE_FLIP, MOVE_JOINT, MOVE_NONE, MOVE_PARAMETER, MOVE_WEIGHT)
+from pbicrl.inference.likelihood_kernels import LikelihoodArrays, grouped_loglik_bound, loglik, pairs_loglik_bound
 from pbicrl.inference.samplers import _parametric, _priorkern, bundles
 from pbicrl.inference.samplers._cache import flush_stale
 from pbicrl.inference.samplers._parametric import param_column
@@ -67,9 +67,26 @@ def _log_q_birth(w_abs: float, mu_a: float, s_a: float, b: float) -> float:
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _bound(power: float, a_new: np.ndarray, lik: LikelihoodArrays) -> float:
-    """``power`` times an upper bound on the explicit pairs' log-likelihood, rounding included (:func:`mh_accept`)."""
+    """``power`` times an upper bound on the log-likelihood, rounding included (:func:`mh_accept`): the explicit
+    pairs' or the grouped likelihood's (:func:`pbicrl.inference.likelihood_kernels.grouped_loglik_bound`)."""
+    if lik.kind == LIK_GROUPED:
+        return power * grouped_loglik_bound(a_new, lik.gitems, lik.goff, lik.gmarg, lik.gbuf, lik.moff)
     u, slack = pairs_loglik_bound(a_new, lik.pi, lik.pj, lik.pm)
     return power * (u + 2.0 * slack)
+
+
+# Measured (benchmarks/reports/fast_default.md, session 13): the bound costs 12-17% of an exact evaluation on the
+# shipped point mass and Fetch-Reach (1,100-1,700 trajectories) and screens ~17% of the evaluations away; on
+# 3 x 100,000 trajectories it costs about half of one (the binning pass) and the runs were 12% slower.
+_SCREEN_MAX_N = 50_000
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _unscreened(ctx: Context) -> float:
+    """The ``bound`` argument of :func:`mh_accept` for every move but a death: NaN (compute the bound) for explicit
+    pairs, whose bound is cheap; ``inf`` (no screening) for the grouped likelihood, whose bound pays only where
+    rejection is nearly certain, i.e. switching off a constraint the rankings need."""
+    return np.nan if ctx.lik.kind == LIK_PAIRWISE else np.inf
 
 
 @njit(cache=True, error_model="numpy")
@@ -130,8 +147,8 @@ def mh_accept(ctx: Context, t: int, ll: float, t1: float, t2: float, t3: float, 
     passed negated, which is the same operation. ``memo >= 0``: the likelihood of the proposal is
     ``scratch.memo_ll[memo]`` where ``scratch.memo_valid[memo]``, and is stored there once evaluated.
 
-    With ``ctx.screen`` (explicit pairs only), a proposal is rejected from a cheap upper bound on its
-    log-likelihood (``bound``; NaN: compute it) when even the bound fails the test. Floating-point addition is
+    With ``ctx.screen`` (explicit pairs; the grouped likelihood's death moves), a proposal is rejected from an upper
+    bound on its log-likelihood (``bound``; NaN: compute it; ``inf``: none) when even the bound fails the test. Floating-point addition is
     monotone, so the exact log-ratio, computed by the same expression, would fail too: same decisions, same
     chain, fewer exact evaluations (``counts[C_EVALS]``).
     """
@@ -286,7 +303,7 @@ def _birth(t: int, j: int, ctx: Context, ll: float, lp: float) -> tuple[bool, fl
             col_new[i] = FbT[j, i]
     for i in range(a.size):
         scratch.a_new[i] = a[i] + w_new * col_new[i]
-    ok, ll_new = mh_accept(ctx, t, ll, model.log_odds, lpw, -lq, -1, np.nan)
+    ok, ll_new = mh_accept(ctx, t, ll, model.log_odds, lpw, -lq, -1, _unscreened(ctx))
     if ok:
         scratch.memo_ll[j] = ll  # the off-state likelihood stays known
         for i in range(a.size):
@@ -373,7 +390,7 @@ def weight(t: int, j: int, ctx: Context, ll: float, lp: float) -> tuple[bool, fl
         else:
             for i in range(a.size):
                 scratch.a_new[i] = a[i] + step * FbT[j, i]
-            ok, ll_new = mh_accept(ctx, t, ll, lp_new, -lp_old, jac, -1, np.nan)
+            ok, ll_new = mh_accept(ctx, t, ll, lp_new, -lp_old, jac, -1, _unscreened(ctx))
             if ok:
                 for i in range(a.size):
                     a[i] = scratch.a_new[i]
@@ -411,7 +428,7 @@ def parameter(t: int, j: int, ctx: Context, ll: float, lp: float) -> tuple[bool,
         else:
             for i in range(a.size):
                 scratch.a_new[i] = a[i] + pos.penalty_weights[j] * (col_new[i] - FbT[j, i])
-            ok, ll_new = mh_accept(ctx, t, ll, lpt_new, -lpt_old, 0.0, -1, np.nan)
+            ok, ll_new = mh_accept(ctx, t, ll, lpt_new, -lpt_old, 0.0, -1, _unscreened(ctx))
             if ok:
                 for i in range(a.size):
                     a[i] = scratch.a_new[i]
@@ -474,7 +491,7 @@ def joint(t: int, ctx: Context, act: np.ndarray, dw: np.ndarray, Lc: np.ndarray,
             jj = act[r]
             for i in range(a.size):
                 a_new[i] += dw[r] * FbT[jj, i]
-        ok, ll_new = mh_accept(ctx, t, ll, lp_new, -lp_old, jac, -1, np.nan)
+        ok, ll_new = mh_accept(ctx, t, ll, lp_new, -lp_old, jac, -1, _unscreened(ctx))
         if ok:
             for i in range(a.size):
                 a[i] = a_new[i]
@@ -659,7 +676,10 @@ def advance(sched: Schedule, pos: Position, lik: LikelihoodArrays, cons: Constra
     lp = pos.log_density[1]
     latent = mode == MODE_PAPER or mode == MODE_AUTHORS  # Algorithm 1's schedule, likelihood-ratio acceptance
     # explicit pairs only: the cheap bound of mh_accept
-    screen = lik.kind == LIK_PAIRWISE and lik.bm.size == 0 and lik.pi.size >= 16
+    # explicit pairs: every move; the grouped likelihood: death moves of the pbicrl sampler (see _unscreened), up to
+    # _SCREEN_MAX_N trajectories: beyond, binning the returns (which the bound needs too) is most of an evaluation
+    screen = ((lik.kind == LIK_PAIRWISE and lik.bm.size == 0 and lik.pi.size >= 16)
+              or (lik.kind == LIK_GROUPED and mode == MODE_PBICRL and lik.gitems.size <= _SCREEN_MAX_N))
     joint_on = moves.p_joint > 0.0 and (mode == MODE_PBICRL or mode == MODE_BPL)
     ctx = Context(mode, screen, pos, lik, cons, moves, model, rnd, adaptation, counts, scratch)
     act = np.empty(d, np.int64)

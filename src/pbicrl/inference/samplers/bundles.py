@@ -216,8 +216,8 @@ class Scratch(NamedTuple):
 class Context(NamedTuple):
     """What the moves of one :func:`pbicrl.inference.samplers._mcmc.advance` call share: the sampler ``mode``
     (``MODE_*``), ``screen`` (whether :func:`pbicrl.inference.samplers._mcmc.mh_accept` may reject on the cheap
-    bound of explicit pairs), and the call's bundles. Built once per call; the moves are inlined into the loop, so
-    reading a field through it costs nothing."""
+    bound of explicit pairs, or of the grouped likelihood for death moves), and the call's bundles. Built once per
+    call; the moves are inlined into the loop, so reading a field through it costs nothing."""
 
     mode: int
     screen: bool
