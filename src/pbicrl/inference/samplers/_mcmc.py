@@ -148,9 +148,9 @@ def mh_accept(ctx: Context, t: int, ll: float, t1: float, t2: float, t3: float, 
     ``scratch.memo_ll[memo]`` where ``scratch.memo_valid[memo]``, and is stored there once evaluated.
 
     With ``ctx.screen`` (explicit pairs; the grouped likelihood's death moves), a proposal is rejected from an upper
-    bound on its log-likelihood (``bound``; NaN: compute it; ``inf``: none) when even the bound fails the test. Floating-point addition is
-    monotone, so the exact log-ratio, computed by the same expression, would fail too: same decisions, same
-    chain, fewer exact evaluations (``counts[C_EVALS]``).
+    bound on its log-likelihood (``bound``; NaN: compute it; ``inf``: none) when even the bound fails the test.
+    Floating-point addition is monotone, so the exact log-ratio, computed by the same expression, would fail too:
+    same decisions, same chain, fewer exact evaluations (``counts[C_EVALS]``).
     """
     scratch, power = ctx.scratch, ctx.model.power
     lu = math.log(ctx.rnd.u_acc[t])
