@@ -403,6 +403,8 @@ def test_death_screen_leaves_the_default_chain_unchanged():
             p = pbicrl.infer(data, iterations=3000, chains=2, seed=11, progress=False, p_joint=0.3)
             assert np.array_equal(np.asarray(p.indicators, dtype=np.int8), ref[f"{data}_c"])
             assert np.array_equal(np.asarray(p.penalty_weights), ref[f"{data}_w"])
-            assert np.array_equal(np.asarray(p.log_likelihood), ref[f"{data}_ll"])
+            # the log-likelihoods to rounding only: a fresh Numba cache may compile the reassociated sums of the
+            # inlined kernel differently from the one that recorded them (the decisions, hence the draws, are equal)
+            np.testing.assert_allclose(np.asarray(p.log_likelihood), ref[f"{data}_ll"], rtol=1e-12, atol=0.0)
             if data == "point_mass":  # deaths of in_orange and in_red are screened, not evaluated
                 assert np.all(p.counts[:, 4] < 0.92 * 3000)
