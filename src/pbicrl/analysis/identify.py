@@ -504,11 +504,15 @@ class _LPSolver:
         """``(status, x, message)``; status as :func:`scipy.optimize.linprog` (0 optimal, 2 infeasible). ``A`` (csr)
         is reused between calls (the working set's rows: the same object until the set grows), ``extra`` (csr) are the
         rows that change from one LP to the next."""
-        if self._hs is not None and slot is not None:
-            out = self._solve_warm(slot, c, A, b, lb, ub, extra, extra_b)
+        if self._hs is not None:
+            # an LP without a slot gets a model of its own, dropped after: with highspy no LP goes through
+            # scipy.optimize.linprog, whose import costs 0.6-0.75 s of every `pbicrl infer`
+            key = slot if slot is not None else "\0once"
+            out = self._solve_warm(key, c, A, b, lb, ub, extra, extra_b)
+            if slot is None or out is None:
+                self._models.pop(key, None)  # anything unusual: solve from scratch, and rebuild the model next time
             if out is not None:
                 return out
-            self._models.pop(slot, None)  # anything unusual: solve from scratch, and rebuild the model next time
         from scipy.optimize import linprog
         from scipy.sparse import vstack
 
@@ -1130,8 +1134,7 @@ def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64],
     obj = np.zeros(lp.n_var)
     obj[:p] = -gbar
     bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
-    # a slot of its own, as every LP here: with highspy no scipy.optimize (0.6-0.8 s of import before every infer)
-    x = lp.solve(obj, bnd, homogeneous=True, slot="improving")
+    x = lp.solve(obj, bnd, homogeneous=True)
     tick.step()
     return x[:p] if x is not None and float(gbar @ x[:p]) > _T_MIN else None
 
@@ -1398,7 +1401,7 @@ def identify(
 
     # ---- separating set S_alpha and the separation scales
     zero = np.zeros(nv)
-    x0 = lp.solve(zero, w_bounds(), homogeneous=False, slot="feasible")  # a slot: highspy when installed
+    x0 = lp.solve(zero, w_bounds(), homogeneous=False)
     separable = x0 is not None
     rng: dict[int, tuple[float, float]] = {}
     tick.close()
