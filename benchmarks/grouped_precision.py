@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         ref = _reference(x, K)
         got = {"per_item": K.group_term(x, np.empty((2, x.size)))}
         if x.size >= K._GB_MIN:
-            cen, mom, nb, sp = K._gb_moments(x, np.arange(x.size))
+            cen, mom, nb, sp = K._gb_moments(x, np.arange(x.size), np.empty((2, x.size)))
             if nb > 0:
                 got["binned"] = K._gb_term(x.size, 0.0, cen, mom, nb, sp, np.empty((3, x.size)))
         for path, g in got.items():

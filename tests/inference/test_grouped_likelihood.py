@@ -262,7 +262,7 @@ def test_large_groups_binned_match_the_per_item_terms(scale):
     n = 12_000
     for shift in (-3.0, 2.0, 25.0):
         a = rng.normal(size=n) * scale + rng.normal()
-        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
+        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n), np.empty((2, n)))
         assert nb > 0  # binning pays for these spreads
         assert _kernels._gb_logsumexp(cen, mom, nb, sp) == pytest.approx(np.logaddexp.reduce(a), rel=1e-13)
         log_lam = np.logaddexp.reduce(a) + shift
@@ -284,6 +284,26 @@ def test_large_groups_binned_match_the_per_item_terms(scale):
     assert lik.from_scaled_returns(a) == pytest.approx(expect, rel=1e-12)
 
 
+@pytest.mark.parametrize("scale", [0.0, 1e-3, 0.3, 3.0, 40.0, 1e4])
+def test_logsumexp_of_a_group_without_an_exp_per_item(scale):
+    """The last group's logsumexp (one ``exp`` per bin, a polynomial per item) equals the exact one; spreads too
+    wide for its bins, small groups and non-finite returns take the exact path with its conventions."""
+    rng = np.random.default_rng(int(scale * 7) + 3)
+    for n in (10, 64, 5_000):
+        a = rng.normal(size=n) * scale + rng.normal() * 50.0
+        idx = rng.permutation(n)[: n - n // 3]
+        got = _kernels._logsumexp_fast(a, idx)
+        assert got == pytest.approx(np.logaddexp.reduce(a[idx]), rel=1e-14, abs=1e-13)
+    a = rng.normal(size=200)
+    for bad in (np.inf, -np.inf, np.nan):
+        b = a.copy()
+        b[17] = bad
+        idx = np.arange(200)
+        got, ref = _kernels._logsumexp_fast(b, idx), _kernels._logsumexp_at(b, idx)
+        assert got == ref or (np.isnan(got) and np.isnan(ref))
+    assert _kernels._logsumexp_fast(np.full(100, -np.inf), np.arange(100)) == -np.inf
+
+
 @pytest.mark.parametrize("scale", [0.01, 1.0, 10.0])
 def test_large_groups_near_certain_use_the_binned_complement(scale):
     """A large group far above the lower ones (P_k close to 1: the direct form declines) gets the complement form on
@@ -293,7 +313,7 @@ def test_large_groups_near_certain_use_the_binned_complement(scale):
     seen = 0
     for shift in (4.0, 8.0, 14.0, 25.0):
         a = rng.normal(size=n) * scale
-        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
+        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n), np.empty((2, n)))
         assert nb > 0
         log_lam = a.min() - shift
         assert np.isnan(_kernels._gb_direct(n, -log_lam, cen, mom, nb, sp, np.empty((3, n))))  # the complement's case
@@ -313,9 +333,9 @@ def test_large_groups_keep_the_per_item_path_when_binning_does_not_pay():
     rng = np.random.default_rng(1)
     n = 3000
     a = rng.normal(size=n) * 1e4  # spread thinly over many bins
-    assert _kernels._gb_moments(a, np.arange(n))[2] == 0
+    assert _kernels._gb_moments(a, np.arange(n), np.empty((2, n)))[2] == 0
     a[5] = np.inf
-    assert _kernels._gb_moments(a, np.arange(n))[2] == 0
+    assert _kernels._gb_moments(a, np.arange(n), np.empty((2, n)))[2] == 0
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -326,7 +346,7 @@ def test_groups_with_dense_and_sparse_bins_match_the_per_item_terms(seed):
     rng = np.random.default_rng(seed)
     a = np.concatenate([rng.normal(size=250) * 0.15, rng.uniform(-15.0, 12.0, size=120)])
     n = a.size
-    cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
+    cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n), np.empty((2, n)))
     assert nb > 0 and 100 <= sp.size < n  # binned, with sparse items beside the bins
     assert mom[:, 0].sum() + sp.size == n
     assert _kernels._gb_logsumexp(cen, mom, nb, sp) == pytest.approx(np.logaddexp.reduce(a), rel=1e-13)
@@ -352,7 +372,7 @@ def test_small_concentrated_groups_binned_match_the_per_item_terms(n):
     rng = np.random.default_rng(n)
     for spread, shift in ((0.02, -2.0), (0.3, 1.0), (0.02, 12.0)):
         a = rng.normal(size=n) * spread + rng.normal()
-        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n))
+        cen, mom, nb, sp = _kernels._gb_moments(a, np.arange(n), np.empty((2, n)))
         if spread == 0.02:
             assert nb > 0  # binning pays for a tight group
         elif nb == 0:

@@ -920,14 +920,16 @@ def group_term(x: np.ndarray, buf: np.ndarray) -> float:
 #
 # For a group of n >= _GB_MIN items the O(n Q) node evaluations dominate (Q ~ 50 nodes and Newton steps, each an
 # exp and a log per item). Bin the returns a_i of the group on a grid of width _GB_WIDTH, centres c_b, and keep per
-# bin the moments M_bq = sum_{i in b} d_i^q / q!, d_i = a_i - c_b (|d_i| <= _GB_WIDTH / 2), q < _GB_ORDER: one pass,
-# O(n _GB_ORDER) multiply-adds and no transcendental function per item. Then, with u_b = s - log Lambda + c_b,
+# bin the moments M_bq = sum_{i in b} d_i^q / q!, d_i = a_i - c_b (|d_i| <= _GB_WIDTH / 2), q < _GB_ORDER: a counting
+# sort of the d_i by bin, then vectorised power sums per bin, O(n _GB_ORDER) multiply-adds and no transcendental
+# function per item. Then, with u_b = s - log Lambda + c_b,
 #   h(s) = sum_i L(s + x_i) = sum_b sum_q L^(q)(u_b) M_bq,
 # L's Taylor coefficients at u_b from power-series arithmetic (exp of a series, log of a series: O(Q^2) per bin and
 # node, stable since e^{-v} v^q / q! <= 1), and likewise h', h''. L is analytic within pi/2 of the real axis, so the
 # truncation error per item is about (_GB_WIDTH / 2 / 1.2)^_GB_ORDER |L| < 2e-14 |L|. Bins far below (u_b < _G_TINY)
 # use L = u - v/2 in closed form (sum_i e^{d_i} = sum_q M_bq); bins far above contribute nothing. The same moments
-# give the group's logsumexp for Lambda (sum_i e^{a_i} = sum_b e^{c_b} sum_q M_bq). A node then costs O(bins Q^2)
+# give the group's logsumexp for Lambda (sum_i e^{a_i} = sum_b e^{c_b} sum_q M_bq); the last group, which has no
+# term of its own, gets its logsumexp without moments (_logsumexp_fast). A node then costs O(bins Q^2)
 # instead of O(n): about 100 bins for returns spread over 10 nats. Used for the direct form (_gb_direct) and, when
 # P_k is close to 1, the complement form (_gb_comp). A bin's Taylor series costs about as much as _GB_DENSE items of
 # the per-item path, so a group may bin only its bins of at least _GB_DENSE items and sum the items of the sparser
@@ -939,20 +941,58 @@ _GB_BIN_COST = 10.0  # a bin's Taylor series at a node costs about as much as th
 _GB_DENSE = 10  # items in a bin from which its Taylor series is cheaper than the items one by one
 _GB_WIDTH = 0.1
 _GB_ORDER = 10  # 12 until 2026-12-05: 1.15x slower nodes and binning for a truncation error below 1e-17
+# (_gb_power_sums writes exactly these ten orders)
 _GB_T = _GB_ORDER + 2  # Taylor coefficients needed for h'' (orders 0 .. _GB_ORDER + 1)
 _INV_FACT = np.array([1.0 / math.factorial(q) for q in range(_GB_T + 1)])
 _FACT = np.array([float(math.factorial(q)) for q in range(_GB_T + 1)])
 _INV_INT = np.array([0.0] + [1.0 / q for q in range(1, _GB_T + 1)])
 
 
+@njit(cache=True, error_model="numpy", fastmath=_FM)
+def _gb_power_sums(d: np.ndarray, i0: int, i1: int, out: np.ndarray) -> None:
+    """``out[q] = sum_i d_i^q / q!`` for ``q < _GB_ORDER`` over ``d[i0:i1]`` (reassociated: vectorised)."""
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    s4 = 0.0
+    s5 = 0.0
+    s6 = 0.0
+    s7 = 0.0
+    s8 = 0.0
+    s9 = 0.0
+    for i in range(i0, i1):
+        x = d[i]
+        x2 = x * x
+        x4 = x2 * x2
+        x8 = x4 * x4
+        s1 += x
+        s2 += x2
+        s3 += x2 * x
+        s4 += x4
+        s5 += x4 * x
+        s6 += x4 * x2
+        s7 += x4 * x2 * x
+        s8 += x8
+        s9 += x8 * x
+    out[0] = i1 - i0
+    out[1] = s1
+    out[2] = s2 * _INV_FACT[2]
+    out[3] = s3 * _INV_FACT[3]
+    out[4] = s4 * _INV_FACT[4]
+    out[5] = s5 * _INV_FACT[5]
+    out[6] = s6 * _INV_FACT[6]
+    out[7] = s7 * _INV_FACT[7]
+    out[8] = s8 * _INV_FACT[8]
+    out[9] = s9 * _INV_FACT[9]
+
+
 @njit(cache=True, error_model="numpy")
-def _gb_moments(a: np.ndarray, items: np.ndarray, split: bool = True) -> tuple[np.ndarray, np.ndarray, int,
+def _gb_moments(a: np.ndarray, items: np.ndarray, buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int,
                                                                               np.ndarray]:
     """``(centres, moments, n_bins, sparse)`` of one group's returns: every bin carries its items' moments, or (when
     the cost rule prefers it) only the bins of at least ``_GB_DENSE`` items, and the returns of the other items are
     ``sparse``; ``n_bins = 0`` when binning does not pay (the cost rule, returns spread over more than 8 n bins,
-    non-finite returns): the caller then uses the per-item path. ``split`` False: never sparse items (a group whose
-    moments serve only its logsumexp).
+    non-finite returns): the caller then uses the per-item path. ``buf``: scratch of shape (>= 2, >= n).
 
     ``moments`` has ``_GB_ORDER + 3`` columns: the moments, then the exclusive prefix sums over the bins below of
     :math:`M_0`, :math:`M_0 c_b + M_1` and (as a logarithm) :math:`e^{c_b} \\sum_q M_{bq}`: the closed form of the
@@ -970,14 +1010,26 @@ def _gb_moments(a: np.ndarray, items: np.ndarray, split: bool = True) -> tuple[n
         cen[b] = lo + (b + 0.5) * _GB_WIDTH
     mom = np.zeros((nb, _GB_ORDER + 3))
     inv_w = 1.0 / _GB_WIDTH
+    # a counting sort of the offsets d_i by bin, then each bin's power sums over contiguous memory (vectorised):
+    # 1.3x the direct accumulation of ten moments per item into its bin's row (ten loads and stores per item)
+    start = np.zeros(nb + 1, np.int64)
+    v_ = buf[0]
     for r in range(n):
         v = a[items[r]]
+        v_[r] = v
+        start[min(int((v - lo) * inv_w), nb - 1) + 1] += 1
+    for b in range(nb):
+        start[b + 1] += start[b]
+    pos = start[:nb].copy()
+    d_ = buf[1]
+    for r in range(n):
+        v = v_[r]
         b = min(int((v - lo) * inv_w), nb - 1)
-        d = v - cen[b]
-        p = 1.0
-        for q in range(_GB_ORDER):
-            mom[b, q] += p
-            p *= d * _INV_INT[q + 1]
+        d_[pos[b]] = v - cen[b]
+        pos[b] += 1
+    for b in range(nb):
+        if start[b + 1] > start[b]:
+            _gb_power_sums(d_, start[b], start[b + 1], mom[b])
     n_full = 0
     n_dense = 0
     n_sparse = 0
@@ -996,13 +1048,13 @@ def _gb_moments(a: np.ndarray, items: np.ndarray, split: bool = True) -> tuple[n
     if min(all_bins, hybrid) >= n:
         return none
     # taking the sparse items out is one more pass over the group: worth it from ~100 nodes x the saving per node
-    if not split or all_bins - hybrid <= n / 400.0:
+    if all_bins - hybrid <= n / 400.0:
         n_sparse = 0
     sparse = np.empty(n_sparse)
     if n_sparse > 0:  # the sparse bins' items go one by one: out of the moments
         k = 0
         for r in range(n):
-            v = a[items[r]]
+            v = v_[r]
             b = min(int((v - lo) * inv_w), nb - 1)
             if mom[b, 0] < _GB_DENSE:
                 sparse[k] = v
@@ -1280,6 +1332,38 @@ def _logsumexp_at(a: np.ndarray, idx: np.ndarray) -> float:
 
 
 @njit(cache=True, error_model="numpy")
+def _logsumexp_fast(a: np.ndarray, idx: np.ndarray) -> float:
+    """:func:`_logsumexp_at` without an ``exp`` per item for groups of >= ``_GB_MIN`` returns within ``n``
+    bins: :math:`e^{a_i - \\max} = e^{c_b - \\max} e^{d_i}` with one ``exp`` per bin and :math:`e^{d_i}`,
+    :math:`|d_i| \\le` ``_GB_WIDTH`` / 2, a degree-9 polynomial (truncation below 3e-20 relative): 4x faster."""
+    lo, hi = _extend_range(a, idx, np.inf, -np.inf)
+    n = idx.size
+    if n < _GB_MIN or not (hi - lo < n * _GB_WIDTH):  # also inf, NaN: the exact path's conventions
+        return _logsumexp_at(a, idx)
+    nb = int((hi - lo) / _GB_WIDTH) + 1
+    tab = np.empty(nb)
+    for b in range(nb):
+        tab[b] = math.exp(lo + (b + 0.5) * _GB_WIDTH - hi)
+    return hi + math.log(_exp_sum_binned(a, idx, lo, tab))
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FM)
+def _exp_sum_binned(a: np.ndarray, idx: np.ndarray, lo: float, tab: np.ndarray) -> float:
+    """:math:`\\sum_i e^{a_i - \\max}` given ``tab[b]`` :math:`= e^{c_b - \\max}` (:func:`_logsumexp_fast`)."""
+    inv_w = 1.0 / _GB_WIDTH
+    nb = tab.size
+    acc = 0.0
+    for r in range(idx.size):
+        v = a[idx[r]]
+        b = min(int((v - lo) * inv_w), nb - 1)
+        d = v - (lo + (b + 0.5) * _GB_WIDTH)
+        e = 1.0 + d * (1.0 + d * (0.5 + d * (_INV_FACT[3] + d * (_INV_FACT[4] + d * (_INV_FACT[5] + d * (
+            _INV_FACT[6] + d * (_INV_FACT[7] + d * (_INV_FACT[8] + d * _INV_FACT[9]))))))))
+        acc += e * tab[b]
+    return acc
+
+
+@njit(cache=True, error_model="numpy")
 def grouped_loglik(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.ndarray, gbuf: np.ndarray,
                    moff: np.ndarray) -> float:
     """Grouped Plackett-Luce log-likelihood :math:`\\sum_{k<K} \\log P_k` for scaled returns ``a``
@@ -1359,9 +1443,9 @@ def _grouped(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.ndar
     cens = [np.zeros(0)]
     moms = [np.zeros((0, _GB_ORDER + 3))]
     sps = [np.zeros(0)]
-    for k in range(K):
+    for k in range(K - 1):  # the last group has no term: only its logsumexp is needed, without moments
         if goff[k + 1] - goff[k] >= _GB_MIN:
-            cen, mom, nb, sp = _gb_moments(a, gitems[goff[k]:goff[k + 1]], k < K - 1)
+            cen, mom, nb, sp = _gb_moments(a, gitems[goff[k]:goff[k + 1]], gbuf)
             if nb > 0:
                 slot[k] = len(cens)
                 cens.append(cen)
@@ -1371,7 +1455,7 @@ def _grouped(a: np.ndarray, gitems: np.ndarray, goff: np.ndarray, gmarg: np.ndar
         if slot[l] >= 0:
             lse[l] = _gb_logsumexp(cens[slot[l]], moms[slot[l]], cens[slot[l]].size, sps[slot[l]])
         else:
-            lse[l] = _logsumexp_at(a, gitems[goff[l]:goff[l + 1]])
+            lse[l] = _logsumexp_fast(a, gitems[goff[l]:goff[l + 1]])
     additive = gmarg.shape[0] == 0
     if additive:  # lse[l] becomes logsumexp over l' >= l of (o_l' + lse_l')
         run = -np.inf
