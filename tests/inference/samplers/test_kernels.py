@@ -517,3 +517,38 @@ def test_pbicrl_chains_start_their_parameters_near_the_identified_interval():
         assert paper.init(seed).parameters[0] == paper_plain.init(seed).parameters[0]
     wide = np.array([plain.init(seed).parameters[0] for seed in range(40)])
     assert wide.min() < max(lo, rl - 2 * w) or wide.max() > min(hi, rh + 2 * w)
+
+
+def test_scale_factor_from_ten_percent_up_is_robbins_monro_and_below_solves_the_gaussian_model():
+    from pbicrl.inference.samplers._mcmc import _scale_factor
+
+    for acc, n in ((10, 100), (30, 100), (90, 100)):
+        assert _scale_factor(acc, n) == pytest.approx(np.exp(acc / n - 0.3), rel=1e-14)
+    # a step of scale sigma on a Gaussian of sd s is accepted with probability (2/pi) atan(2 s / sigma)
+    for ratio in (0.03, 0.05, 0.07):  # s / sigma (below 0.025 the factor is clipped at 0.1)
+        alpha = 2 / np.pi * np.arctan(2 * ratio)
+        assert alpha < 0.1
+        f = _scale_factor(round(alpha * 10_000), 10_000)
+        assert 2 / np.pi * np.arctan(2 * ratio / f) == pytest.approx(0.3, abs=0.01)
+    assert _scale_factor(0, 200) == 0.1  # no acceptance: the largest shrink per window
+    assert _scale_factor(0, 20) == pytest.approx(np.exp(-0.3))  # too few steps to say more than Robbins-Monro
+
+
+def test_warm_up_reaches_the_scale_of_a_narrow_posterior():
+    """3 x 5,000 trajectories ranked by a noisy return: the posterior of the penalties is ~50x narrower than the
+    start's step; after the default warm-up the weight steps accept 29% (11% with Robbins-Monro alone, whose scale
+    shrinks at most 0.74x per window)."""
+    from pbicrl.inference.codes import MOVE_WEIGHT
+
+    rng = np.random.default_rng(0)
+    n = 5_000
+    F = np.abs(rng.normal(size=(3 * n, 4))) * [1.0, 0.2, 0.2, 0.5]
+    score = F @ np.array([1.0, -5.0, -10.0, -1.0]) + rng.gumbel(size=3 * n)
+    rank = np.empty(3 * n, dtype=np.int64)
+    rank[np.argsort(-score)] = np.arange(3 * n)
+    ds = Dataset(F, np.arange(3 * n + 1), rank // n + 1, nominal_weights=np.array([1.0, 0.0, 0.0, -1.0]))
+    lik = PreferenceLikelihood.from_dataset(ds, likelihood="grouped")
+    post = sample(lik, iterations=3000, burn_in=2000, chains=1, seed=0, jobs=1, progress=False)
+    weight_steps = np.asarray(post.move) == MOVE_WEIGHT
+    assert weight_steps.sum() > 200
+    assert np.asarray(post.accepted)[weight_steps].mean() > 0.2
