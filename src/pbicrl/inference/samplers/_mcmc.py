@@ -588,14 +588,14 @@ _TAN_TARGET = math.tan(0.15 * math.pi)  # acceptance 0.3 under the model of _sca
 @njit(cache=True, error_model="numpy")
 def _scale_factor(accepted: float, proposed: float) -> float:
     """The factor for a weight's random-walk scale (``pbicrl`` sampler) after a warm-up window that accepted
-    ``accepted`` of ``proposed`` steps: Robbins-Monro :math:`e^{\alpha - 0.3}` (the ``bpl`` sampler's rule) from
+    ``accepted`` of ``proposed`` steps: Robbins-Monro :math:`e^{\\alpha - 0.3}` (the ``bpl`` sampler's rule) from
     10% acceptance up; below, a step far wider than the posterior, the scale is solved for in one window (from 50
     steps in the window: fewer say too little, P(< 10% | 30%) = 7e-4 at 50, and a feature switched on for a few
     steps of a window must not collapse its scale).
 
-    A Gaussian step of scale :math:`\sigma` on a Gaussian of sd :math:`s` is accepted with probability
-    :math:`(2/\pi)\arctan(2s/\sigma)`; the factor that takes :math:`\alpha` to 30% under that model is
-    :math:`\tan(\pi\alpha/2)/\tan(0.15\pi)` (at least 0.1). Robbins-Monro shrinks a scale by at most 0.74x per
+    A Gaussian step of scale :math:`\\sigma` on a Gaussian of sd :math:`s` is accepted with probability
+    :math:`(2/\\pi)\\arctan(2s/\\sigma)`; the factor that takes :math:`\\alpha` to 30% under that model is
+    :math:`\\tan(\\pi\\alpha/2)/\\tan(0.15\\pi)` (at least 0.1). Robbins-Monro shrinks a scale by at most 0.74x per
     window: on 3 x 100,000 trajectories, whose posterior is ~100x narrower than the start's scale, the weight steps
     still accepted 2.8% after the four windows of warm-up, and the chains needed 6,130-12,918 iterations (seeds
     0-2) against 4,410-5,754 with this rule. Above 10% the rule is unchanged: the shipped point-mass (seeds 0-11) and
