@@ -77,6 +77,9 @@ def test_average_ranks_equal_scipy_rankdata():
 
     rng = np.random.default_rng(11)
     cases = [rng.normal(size=(4, 300)), rng.integers(0, 3, size=(4, 80)).astype(float), np.zeros((2, 6)),
-             np.array([[1.0, np.inf, -np.inf, 2.0, 1.0]])]
+             np.array([[1.0, np.inf, -np.inf, 2.0, 1.0]]),
+             # two values (indicators: ranked without a sort), also with infinities and a single odd draw
+             (rng.random((4, 500)) < 0.3).astype(float), np.where(rng.random((2, 50)) < 0.5, -np.inf, 3.5),
+             np.r_[np.zeros(99), 1.0].reshape(4, 25)]
     for x in cases:
         np.testing.assert_array_equal(_average_ranks(x), rankdata(x, method="average").reshape(x.shape))

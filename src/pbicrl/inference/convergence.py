@@ -55,6 +55,11 @@ def _average_ranks(x: NDArray[np.float64]) -> NDArray[np.float64]:
     """1-based ranks of the flattened draws, ties sharing their average rank (``scipy.stats.rankdata``'s
     ``average``, without importing ``scipy.stats``, which costs about a second of start-up)."""
     flat = x.ravel()
+    lo, hi = flat.min(), flat.max()
+    is_lo = flat == lo
+    if lo != hi and np.all(is_lo | (flat == hi)):  # two values (indicators, most reported quantities): no sort
+        n_lo = int(np.count_nonzero(is_lo))
+        return np.where(is_lo, 0.5 * (n_lo - 1) + 1.0, 0.5 * (n_lo + flat.size - 1) + 1.0).reshape(x.shape)
     order = np.argsort(flat, kind="mergesort")
     srt = flat[order]
     new = np.empty(srt.size, dtype=bool)
@@ -100,7 +105,12 @@ def rhat(x: NDArray[np.float64]) -> float:
     s = _split(x)
     if np.all(s.var(axis=1) == 0):
         return math.inf
-    bulk = _rhat_basic(_rank_normalise(s))
+    return _rhat_split(s, _rank_normalise(s))
+
+
+def _rhat_split(s: NDArray[np.float64], z: NDArray[np.float64]) -> float:
+    """:func:`rhat` from the split chains ``s`` and their rank normalisation ``z``."""
+    bulk = _rhat_basic(z)
     folded = _rhat_basic(_rank_normalise(np.abs(s - np.median(s))))
     return float(max(bulk, folded))
 
@@ -327,8 +337,14 @@ def reported_quantities(indicators: NDArray, penalty_weights: NDArray, log_likel
 def _stats(x: NDArray[np.float64]) -> tuple[float | None, float | None, float | None]:
     if x.ndim != 2 or x.shape[1] < 4 or np.all(x == x.flat[0]):
         return None, None, None
-    r = rhat(x)
-    b = ess_bulk(x)
+    s = _split(x)
+    if np.all(s.var(axis=1) == 0):
+        r = math.inf
+        b = ess_bulk(x)
+    else:  # rhat and ess_bulk share the split chains' rank normalisation
+        z = _rank_normalise(s)
+        r = _rhat_split(s, z)
+        b = _ess(z)
     t = ess_tail(x)
     return (None if math.isnan(r) else r, None if math.isnan(b) else b, None if math.isnan(t) else t)
 
