@@ -1,0 +1,9 @@
+# The settings every chain shares: sourced by chain*.sh (set -u; REPO, OUT, INFER, PY, R).
+set -u
+REPO=$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)
+OUT=${ICRL_RUNS:-/work/icrl_runs}  # restore from training/icrl first when missing (README)
+INFER=${ICRL_INFER:-/work/icrl_infer}
+PY=${PYTHON:-python}
+cd "$REPO"
+export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 PYTHONPATH="$REPO/src"
+R="$PY -m pbicrl.cli.icrl_benchmark --out $OUT --run"
