@@ -98,7 +98,7 @@ def test_an_edit_of_the_likelihood_kernels_reaches_the_cached_sampler(tmp_path):
     assert _run(env_src, code) == "True"  # cached
     f = tmp_path / "pbicrl" / "inference" / "likelihood_kernels.py"
     text = f.read_text()
-    old = "    return total_loglik(a, brows, broff, bcols, bcoff, bm, pi, pj, pm, b, Q, Qinv, E, Einv)\n"
+    old = "    return total_loglik(a, lik.brows, lik.broff,"  # loglik's pairwise branch (the test's likelihood)
     assert text.count(old) == 1
     f.write_text(text.replace(old, old.replace("return total_loglik(", "return 1.0 + total_loglik(")))
     # the loop (cached in _mcmc.py, unchanged) and the Python-side evaluation must both see the edit
