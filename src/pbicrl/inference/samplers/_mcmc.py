@@ -586,7 +586,7 @@ _TAN_TARGET = math.tan(0.15 * math.pi)  # acceptance 0.3 under the model of _sca
 
 
 @njit(cache=True, error_model="numpy")
-def _scale_factor(accepted: float, proposed: float) -> float:
+def _scale_factor(accepted: float, proposed: float, solve: bool = True) -> float:
     """The factor for a weight's random-walk scale (``pbicrl`` sampler) after a warm-up window that accepted
     ``accepted`` of ``proposed`` steps: Robbins-Monro :math:`e^{\\alpha - 0.3}` (the ``bpl`` sampler's rule) from
     10% acceptance up; below, a step far wider than the posterior, the scale is solved for in one window (from 50
@@ -599,8 +599,9 @@ def _scale_factor(accepted: float, proposed: float) -> float:
     window: on 3 x 100,000 trajectories, whose posterior is ~100x narrower than the start's scale, the weight steps
     still accepted 2.8% after the four windows of warm-up, and the chains needed 6,130-12,918 iterations (seeds
     0-2) against 4,410-5,754 with this rule. Above 10% the rule is unchanged: the shipped point-mass (seeds 0-11) and
-    Fetch-Reach (seeds 0-19) runs to convergence take the same iterations as before."""
-    if accepted >= 0.1 * proposed or proposed < 50.0:
+    Fetch-Reach (seeds 0-19) runs to convergence take the same iterations as before. ``solve`` False: Robbins-Monro
+    throughout (the ``bpl`` sampler)."""
+    if not solve or accepted >= 0.1 * proposed or proposed < 50.0:
         return math.exp(accepted / proposed - 0.3)
     rate = (accepted + 0.5) / (proposed + 1.0)
     return max(math.tan(0.5 * math.pi * rate) / _TAN_TARGET, 0.1)
@@ -615,10 +616,7 @@ def adapt(mode: int, joint_on: bool, cons: ConstraintArrays, moves: Moves, adapt
     ad, sigma = adaptation.stats, adaptation.sigma
     for k in range(sigma.size):
         if ad[3, k] >= 10:
-            if mode == MODE_PBICRL:
-                sigma[k] *= _scale_factor(ad[4, k], ad[3, k])
-            else:
-                sigma[k] *= math.exp(ad[4, k] / ad[3, k] - 0.3)  # Robbins-Monro towards ~30% acceptance
+            sigma[k] *= _scale_factor(ad[4, k], ad[3, k], mode == MODE_PBICRL)  # towards ~30% acceptance
         ad[3, k] = 0
         ad[4, k] = 0
         if mode == MODE_PBICRL and ad[0, k] >= 20:  # on eta = log|w| where log_sign[k] != 0
