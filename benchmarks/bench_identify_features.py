@@ -85,6 +85,7 @@ def _one(d: int, variant: str, kind: str, trajectories: int, solver: str) -> dic
             "n_lp": res.n_lp, "separable": res.separable, "free": free,
             "unbounded": int(sum(f.unbounded for f in res.features)),
             "positive_scale": int(sum((f.min_penalty or 0.0) > 0 for f in res.features)),
+            "companions": bool(getattr(res, "companions", True)),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "solver": "highspy (warm starts)" if ident._LPSolver(ident._WARM).warm else "scipy linprog"}
 
@@ -132,7 +133,8 @@ def main() -> None:
                 continue
             print(f"{d:>7} {row['free']:>6} {variant:<10} {row['seconds']:8.2f} {row['cpu_seconds']:8.2f} "
                   f"{row['n_lp']:>6} {str(row['separable']):>9} {row['unbounded']:>9} {row['positive_scale']:>10} "
-                  f"{row['peak_rss_mb']:8.0f} {row['load'][0]:>4}-{row['load'][1]:<5}  {row['solver']}", flush=True)
+                  f"{row['peak_rss_mb']:8.0f} {row['load'][0]:>4}-{row['load'][1]:<5}  {row['solver']}"
+                  + ("" if row.get("companions", True) else ", no companions"), flush=True)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)

@@ -1,11 +1,16 @@
 """The identifiability analysis as it was before the speed-ups of issue 31 item 9 (commit 98b6793, verbatim below this
-docstring but for it and one line marked CHANGED): the oracle that tests/analysis/test_identify_fast.py compares the
+docstring but for it and the lines marked CHANGED): the oracle that tests/analysis/test_identify_fast.py compares the
 current one with. Not part of the package; do not import it from src/.
 
 CHANGED (issue 31 item 9, second pass): the sparsest direction's required improvement is half the max-t LP's optimal
 value t*, no longer half the improvement ``gbar @ d0`` of the optimal vertex that HiGHS happened to return (which
 changed with a constant shift of a feature column or a warm start, and the reported companions with it). The same
-change is in src/pbicrl/analysis/identify.py."""
+change is in src/pbicrl/analysis/identify.py.
+
+CHANGED again (third pass): that required improvement is now the same for every feature, half of min(1, g*), g* the
+largest improvement ``gbar @ delta`` of any direction in the cone and the unit box (unique, as t* is, and at least
+t* for every feature, so the LP stays feasible wherever the max-t LP finds t* > 0; the current analysis then needs no
+max-t LP). The two lines computing g* and the eps line are marked.)"""
 
 
 from __future__ import annotations
@@ -967,6 +972,12 @@ def identify(
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
     tick = _Progress(progress, "identify: recession directions")
+    # CHANGED (third pass): the best improvement g* over the cone in the unit box, for the sparsest direction's eps
+    g_obj = np.zeros(nv)
+    g_obj[:p] = -gbar
+    g_bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
+    xg = lp.solve(g_obj, g_bnd, homogeneous=True) if p else None
+    g_star = float(gbar @ xg[:p]) if xg is not None else 0.0
     for a in (_recession_support(lp, p, K, free_uv, tick) if neg else range(p)):
         j = free[a]
         for sgn in ((-1.0,) if neg else (-1.0, 1.0)):
@@ -982,7 +993,7 @@ def identify(
                 continue
             # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others.
             d0 = x[:p] / abs(x[a])
-            eps = 0.5 * float(x[it])  # CHANGED: was 0.5 * float(gbar @ d0), see the module docstring
+            eps = 0.5 * min(1.0, g_star)  # CHANGED: was 0.5 * float(gbar @ d0), see the module docstring
             obj = np.zeros(nv)
             obj[ia:ia + p] = 1.0
             obj[ia + a] = 0.0

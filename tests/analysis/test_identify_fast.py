@@ -246,3 +246,110 @@ def test_the_warm_solver_prints_nothing(capfd):
     identify(ds, **kw)
     out, err = capfd.readouterr()
     assert "HiGHS" not in out and "HiGHS" not in err, out + err
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_without_companions_the_same_unbounded_penalties_and_ends(seed):
+    """identify(companions=False) decides unboundedness from the shared LPs alone (w_p <= 0: a direction that moves a
+    penalty plus the improving one is unbounded); every flag, scale and end must be the reference's, and only the
+    directions are left out."""
+    ds, kw = _problem(seed)
+    new, old = identify(ds, **kw, companions=False), ref.identify(ds, **kw)
+    assert new.companions == (kw["penalty_sign"] == "any")  # "any": the deciding LP is the companions' LP
+    for f, g in zip(new.features, old.features):
+        assert (f.identifiable, f.unbounded, f.direction) == (g.identifiable, g.unbounded, g.direction), (seed, f, g)
+        if g.min_penalty is None:
+            assert f.min_penalty is None
+        else:
+            assert f.min_penalty == pytest.approx(g.min_penalty, rel=1e-6, abs=1e-7)
+            for x, y in zip(f.penalty_range, g.penalty_range):
+                assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-6, abs=1e-7)
+        if kw["penalty_sign"] == "negative":
+            assert f.recession == ()
+            if f.unbounded and f.identifiable:
+                assert "companions were not computed" in f.reason
+                assert "companions were not computed" in new.explanations()[f.name]
+
+
+def _dense(n: int, p: int, seed: int = 0) -> Dataset:
+    """``n`` trajectories of 4 states in 3 groups; two features tell the groups apart, ``p - 2`` uniform ones."""
+    rng = np.random.default_rng(seed)
+    group = np.repeat([1, 2, 3], -(-n // 3))[:n]
+    g = np.repeat(group, 4)
+    F = rng.random((4 * n, p))
+    F[:, 0] = (g == 2) * (rng.random(4 * n) < 0.5)
+    F[:, 1] = (g == 3) * (rng.random(4 * n) < 0.5)
+    F[::4, 0], F[::4, 1] = group == 2, group == 3
+    return Dataset(features=F, offsets=np.arange(0, 4 * n + 1, 4), group=group,
+                   feature_names=[f"f{j}" for j in range(p)])
+
+
+def test_many_unbounded_penalties_skip_the_companions_by_default():
+    """Above the default's size (more than 200 unbounded penalties) no per-feature LP runs: the same flags and scales
+    as with companions, a handful of LPs instead of one per feature, and the reason says how to get them."""
+    ds = _dense(60, 240)
+    auto, full = identify(ds), identify(ds, companions=True)
+    assert full.companions and not auto.companions and auto.to_dict()["companions"] is False
+    assert auto.n_lp < 40 < full.n_lp
+    assert int(auto.unbounded.sum()) == int(full.unbounded.sum()) > identify_module._COMPANION_MAX
+    np.testing.assert_allclose(auto.min_penalty, full.min_penalty, rtol=1e-6, atol=1e-7)
+    for f, g in zip(auto.features, full.features):
+        assert (f.unbounded, f.direction, f.identifiable) == (g.unbounded, g.direction, g.identifiable)
+        assert (f.penalty_range is None) == (g.penalty_range is None)
+        if f.penalty_range is not None:
+            np.testing.assert_allclose(f.penalty_range, g.penalty_range, rtol=1e-6, atol=1e-7)
+        assert f.recession == () and (not g.unbounded or g.recession)
+    small = identify(_dense(60, 20))
+    assert small.companions and all(f.recession for f in small.features if f.unbounded)
+
+
+def test_the_zero_rounds_settle_upper_ends_exactly():
+    """w_p <= 0: upper ends at 0 come from points of S_alpha with zeros (the smallest sum |w|, then the same over the
+    features not yet settled) instead of one LP per feature; every end must equal its own LP's."""
+    ds = _dense(45, 60, seed=3)
+    new = identify(ds, alpha=0.2)
+    X = ds.mean_features
+    from scipy.optimize import linprog
+
+    labels = ds.group_labels
+    L = math.log(0.8 / 0.2)
+    rows, rhs = [], []
+    for k in range(labels.size):
+        for l in range(k + 1, labels.size):
+            for i in np.flatnonzero(ds.group == labels[k]):
+                for j in np.flatnonzero(ds.group == labels[l]):
+                    rows.append(-(X[i] - X[j]))
+                    rhs.append(-L)
+    assert new.separable
+    checked = 0
+    for a, f in enumerate(new.features):
+        obj = np.zeros(X.shape[1])
+        obj[a] = -1.0  # the highest w_a
+        r = linprog(obj, A_ub=np.array(rows), b_ub=np.array(rhs), bounds=[(None, 0.0)] * X.shape[1], method="highs")
+        assert r.status == 0
+        assert f.penalty_range[1] == pytest.approx(r.x[a], abs=1e-6 * (1 + abs(r.x[a]))), (f.name, r.x[a])
+        checked += f.penalty_range[1] < 0
+    assert checked >= 1  # some penalty is required (its upper end below 0), the rest are settled at 0
+
+
+def test_progress_shows_while_one_lp_takes_long(monkeypatch, capfd):
+    """issue 31 item 9: with many dense features one LP takes 15 s; the bar must appear (and its clock run) during
+    it, not after it."""
+    monkeypatch.setattr(identify_module, "_PROGRESS_DELAY_S", 0.1)
+    slow = identify_module._LPSolver.solve
+    during = []
+
+    def solve(self, *a, **k):
+        if not during:
+            import time
+
+            time.sleep(2.5)
+            during.append(capfd.readouterr().err)  # what stderr showed while this LP ran
+        return slow(self, *a, **k)
+
+    monkeypatch.setattr(identify_module._LPSolver, "solve", solve)
+    ds, kw = _problem(3)
+    capfd.readouterr()
+    identify(ds, **kw, progress=True)
+    assert "identify: unbounded penalties" in during[0], during
+    assert during[0].count("\r") >= 2, during  # drawn, then redrawn with its clock one second on

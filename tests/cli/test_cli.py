@@ -180,3 +180,18 @@ def test_identify_prints_each_warning_once_and_short(capsys):
     d = json.loads(capsys.readouterr().out)
     assert [f"warning: {m}" for m in d["warnings"]] == lines
     assert all(len(t) > 200 for t in d["explanations"].values()) and "min|w_p|" in d["explanation"]
+
+
+def test_identify_companions_on_and_off(capsys):
+    """issue 31 item 9: --no-companions leaves out the per-feature sparsest directions (the flags and scales stay),
+    --companions asks for them whatever the size."""
+    assert main(["identify", "example", "--json", "--companions"]) == 0
+    full = json.loads(capsys.readouterr().out)
+    assert main(["identify", "example", "--json", "--no-companions"]) == 0
+    bare = json.loads(capsys.readouterr().out)
+    assert full["companions"] is True and bare["companions"] is False
+    unb = [n for n, f in full["features"].items() if f["unbounded"]]
+    assert unb and all(full["features"][n]["recession"] for n in unb)
+    assert all(bare["features"][n]["recession"] == [] and bare["features"][n]["unbounded"] for n in unb)
+    assert [f["min_penalty"] for f in bare["features"].values()] == \
+        pytest.approx([f["min_penalty"] for f in full["features"].values()])

@@ -55,6 +55,7 @@ import functools
 import math
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal, Mapping, Sequence
@@ -232,6 +233,9 @@ class Identification:
         One per parameter of the parametric constraints (empty without constraints).
     n_lp : int
         Linear programs solved (including cutting-plane rounds).
+    companions : bool
+        Whether the sparsest companions of unbounded penalties were computed (``recession`` of each unbounded
+        feature); see :func:`identify`'s ``companions``.
     runtime_s : float
     pairs : dict or None
         ``None``: the analysis covers every cross-group pair (what the grouped and the all-pairs likelihoods use).
@@ -253,6 +257,7 @@ class Identification:
     n_lp: int = 0
     runtime_s: float = 0.0
     pairs: dict[str, Any] | None = None
+    companions: bool = True
 
     @property
     def pair_words(self) -> str:
@@ -304,6 +309,7 @@ class Identification:
             "parameter_details": {p.name: p.to_dict() for p in self.parameters},
             "n_lp": self.n_lp,
             "runtime_s": self.runtime_s,
+            "companions": self.companions,
             "pairs": ({"used": "all cross-group pairs"} if self.pairs is None
                       else {"used": "sampled pairs (the ones the likelihood uses)", **self.pairs}),
         }
@@ -332,7 +338,8 @@ class Identification:
             if not f.unbounded or f.name in out:
                 continue
             toward = {"-inf": "-inf", "+inf": "+inf", "both": "+/-inf"}[f.direction or "-inf"]
-            runs = "; ".join(_direction_text(d) for d in f.recession)
+            runs = ("; ".join(_direction_text(d) for d in f.recession) if f.recession
+                    else "a direction that moves it (its companions were not computed)")
             head = (f"{f.name}: penalty unbounded by the data - along {runs} (w_p -> {toward}) no pair's probability "
                     "ever decreases and some increase, so the likelihood's maximum is at infinity.")
             if f.min_penalty is None:
@@ -757,6 +764,10 @@ class _GroupLP:
                        shape=(n, self.keep.size)).tocsr()
         return A, rhs, rhs_h
 
+    def rows_nnz(self, homogeneous: bool) -> int:
+        """Non-zeros of the working set's and the ordering rows (what an LP over them holds)."""
+        return int(self._rows(homogeneous)[0].nnz)
+
     def _rows(self, homogeneous: bool) -> tuple[Any, NDArray[np.float64]]:
         """The working set's rows and the ordering rows, and their right-hand sides (cached until the set grows)."""
         key = (len(self.work), homogeneous)
@@ -992,27 +1003,48 @@ def threshold_interval(dataset: Dataset, constraint: AxisHalfspace, *, name: str
 
 # ---------------------------------------------------------------------------------------------- main
 _PROGRESS_DELAY_S = 2.0
+# identify(companions=None) finds the sparsest companions of unbounded penalties (w_p <= 0) for at most this many
+# unbounded penalties, and only when their number times the non-zeros of the LP's rows is at most _COMPANION_WORK: one
+# warm-started LP each, 2-20 ms with a few hundred trajectories (one-hot cells to 100 dense features), 60 ms with
+# 300 dense ones (benchmarks/reports/identify.md).
+_COMPANION_MAX = 200
+_COMPANION_WORK = 2e7
 
 
 class _Progress:
     """A tqdm bar on stderr (or nothing) that appears once the analysis started at ``t0`` (``time.perf_counter``)
-    has run :data:`_PROGRESS_DELAY_S` seconds, so a quick analysis prints nothing and a long one shows each phase."""
+    has run :data:`_PROGRESS_DELAY_S` seconds, so a quick analysis prints nothing and a long one shows each phase.
+    A thread redraws it every second, so its clock runs while a single LP takes long (10,000 dense features: 15 s
+    per LP; HiGHS releases the GIL while it solves)."""
 
     def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature",
                  t0: float | None = None) -> None:
         self.bar = None
+        self._stop = threading.Event()
+        self._ticker: threading.Thread | None = None
         if enabled:
             from tqdm import tqdm
 
             waited = 0.0 if t0 is None else time.perf_counter() - t0
-            self.bar = tqdm(desc=what, total=total, unit=unit, delay=max(0.0, _PROGRESS_DELAY_S - waited), leave=False,
-                            dynamic_ncols=True)
+            delay = max(0.0, _PROGRESS_DELAY_S - waited)
+            self.bar = tqdm(desc=what, total=total, unit=unit, delay=delay, leave=False, dynamic_ncols=True)
+            self._ticker = threading.Thread(target=self._redraw, args=(delay,), daemon=True)
+            self._ticker.start()
 
-    def step(self) -> None:
+    def _redraw(self, delay: float) -> None:
+        if self._stop.wait(delay):
+            return
+        while self.bar is not None and not self._stop.wait(1.0):
+            self.bar.refresh()
+
+    def step(self, n: int = 1) -> None:
         if self.bar is not None:
-            self.bar.update(1)
+            self.bar.update(n)
 
     def close(self) -> None:
+        self._stop.set()
+        if self._ticker is not None:
+            self._ticker.join()
         if self.bar is not None:
             self.bar.close()
 
@@ -1152,6 +1184,7 @@ def identify(
     preferences: Preferences | None = None,
     pairs_seed: int | None = None,
     progress: bool = False,
+    companions: bool | None = None,
 ) -> Identification:
     r"""Identifiability analysis of a ranked dataset, before sampling.
 
@@ -1186,6 +1219,14 @@ def identify(
     pairs_seed : int, optional
     progress : bool
         Show a progress bar on stderr when the analysis runs longer than a few seconds (many features).
+    companions : bool, optional
+        Whether to find, for every unbounded penalty, the sparsest set of penalties that must run off with it
+        (:attr:`FeatureIdentification.recession`): one LP per unbounded feature. ``None`` (default): when that is
+        cheap, for up to 200 unbounded penalties whose number times the non-zeros of the LP's rows is at most
+        ``2e7`` (with many dense features each direction involves most features anyway). With ``False``, or
+        ``None`` above that size, which penalties are unbounded is still decided exactly (from the shared LPs) and
+        ``recession`` is empty (:attr:`Identification.companions` says so). With ``penalty_sign="any"`` the LP that
+        decides whether a penalty is unbounded is the companions' LP, so they are always found.
 
     Returns
     -------
@@ -1198,13 +1239,14 @@ def identify(
 
     Notes
     -----
-    Cost: up to a handful of LPs per candidate (the two ends of :math:`w_{p,j}` over :math:`S_\alpha`, one recession
-    LP per admissible sign and one for the sparsest direction) after a few shared ones (feasibility; with
-    :math:`w_p \le 0`, the features some recession direction moves; whether any direction improves the ranking).
-    Skipped: the recession LPs when no direction improves the ranking (then no penalty is unbounded), the upper end
-    of :math:`w_{p,j} \le 0` when a point of :math:`S_\alpha` found so far has :math:`w_{p,j} = 0`, every end when
-    the ranking is not separable, and the recession LP of a feature whose best improvement :math:`t^*` a direction
-    found so far already attains (usually all but a few dozen). Each LP is over
+    Cost: a few shared LPs (with :math:`w_p \le 0`: the features some recession direction moves, whether any
+    direction improves the ranking, the point of :math:`S_\alpha` with the smallest :math:`\sum_j |w_{p,j}|` and the
+    like over the penalties not yet seen at 0), then at most one LP per candidate and way: the sparsest direction of
+    an unbounded penalty (``companions``; with :math:`w_p \le 0` it only finds the companions, which penalties are
+    unbounded is known from the shared LPs; with ``"any"`` it also decides it), and an end of :math:`w_{p,j}` over
+    :math:`S_\alpha` that is neither infinite (unbounded) nor settled at 0 by a point found so far (no ends when the
+    ranking is not separable). The sparsest direction asks for an improvement :math:`\bar g^\top\delta` of at least
+    half of :math:`\min(1, g^*)`, :math:`g^*` the largest improvement over the cone in the unit box. Each LP is over
     ``p + 2K + 1 (+ p)`` variables (less two per single-trajectory group) and the rows of a small working set of
     extreme trajectories (cutting planes, exact at termination) plus the group-ordering rows: K - 1 for additive
     margins (zeros, gaps), K(K-1)/2 for a general matrix; every round checks all ``N`` trajectories in
@@ -1212,8 +1254,9 @@ def identify(
     fraction) keeps its zeros. With ``highspy`` installed (``pip install "pbicrl[lp]"``) the LPs of one kind are
     warm-started from the last basis; else each is solved by :func:`scipy.optimize.linprog`. Memory is O(N p + K)
     for additive margins: a total ranking of 20,000 trajectories takes a few seconds and tens of MB
-    (``tests/analysis/test_identify.py``). With many features the per-feature LPs dominate: 1,000 and 10,000 one-hot
-    cell features of 300 trajectories take tens of seconds (``benchmarks/reports/identify.md``).
+    (``tests/analysis/test_identify.py``). 300 trajectories with 1,000 or 10,000 one-hot cell features take about a
+    second, with 1,000 dense features under 10 s, with 10,000 dense ones (6 million non-zeros per LP) a minute or
+    two (``benchmarks/reports/identify.md``).
     """
     t0 = time.perf_counter()
     if not isinstance(dataset, Dataset):
@@ -1221,7 +1264,7 @@ def identify(
     if preferences is not None and preferences.protocol != "all":
         return _identify_pairs(dataset, preferences, pairs_seed, nominal_weights=nominal_weights, beta=beta,
                                margins=margins, alpha=alpha, candidates=candidates, penalty_sign=penalty_sign,
-                               constraints=constraints, t0=t0)
+                               constraints=constraints, t0=t0, companions=companions)
     if penalty_sign not in ("negative", "any"):
         raise IdentifyError(f"penalty_sign: expected 'negative' or 'any', got {penalty_sign!r}")
     from pbicrl.inference.likelihood import check_beta
@@ -1329,53 +1372,29 @@ def identify(
     tick.close()
     tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable), t0=t0)
     signs = (-1.0,) if neg else (-1.0, 1.0)
-    # The max-t LP of feature a, sign s: t* = max min(s delta_a, gbar@delta) over the cone in the box, t <= 1, so
-    # t* <= t_up = min(1, max gbar@delta) (the maximum is _improving's). Every direction D found so far (in the cone and
-    # the box) gives t* >= min(s D_a, gbar@D, 1); where that reaches t_up, t* is known and the LP is not solved. The
-    # directions HiGHS returns have most coordinates at -1 and gbar@D >= 1, so after a few dozen LPs nearly every
-    # feature is settled that way (exact: the same t*, up to the solver's tolerance).
-    t_up = min(1.0, float(gbar @ best_dir)) if best_dir is not None else 0.0
-    lower = {sg: np.full(p, -np.inf) for sg in signs}
-    lower_at = {sg: np.zeros(p, dtype=np.int64) for sg in signs}
-    found: list[NDArray[np.float64]] = []
-
-    def add_direction(D: NDArray[np.float64]) -> None:
-        g = min(1.0, float(gbar @ D))
-        if g <= _T_MIN:
-            return
-        found.append(D)
-        for sg in signs:
-            lb = np.minimum(sg * D, g)
-            better = lb > lower[sg]
-            lower[sg][better] = lb[better]
-            lower_at[sg][better] = len(found) - 1
-
-    if best_dir is not None:
-        add_direction(best_dir)
+    # One required improvement for every feature: eps = t_up / 2, t_up = min(1, g*), g* = max gbar@delta over the cone
+    # in the unit box (_improving's optimal value, unique whichever vertex the solver returns). For feature a, sign s,
+    # the sparsest-direction LP below (s*delta_a = 1, the others unboxed) can reach any improvement up to
+    # M_a = sup gbar@delta/|delta_a|, and M_a >= g* whenever some cone direction D has s*D_a > 0 and gbar@D > 0: add a
+    # small multiple of D to the maximiser D* (if s*D*_a >= 0, the ratio tends to g*/|D*_a| >= g*; if s*D*_a < 0 it
+    # grows without bound where the sum's a-th coordinate crosses 0). So that LP is feasible exactly when the penalty is
+    # unbounded in that direction, and it decides it: no per-feature max-t LP (which, with dense features, was 3/4 of
+    # the time: one O(N p) LP per feature, none settled by another's vertex).
+    eps = 0.5 * min(1.0, float(gbar @ best_dir)) if best_dir is not None else 0.0
+    work = len(movable) * lp.rows_nnz(homogeneous=True) if movable else 0
+    cheap = len(movable) <= _COMPANION_MAX and work <= _COMPANION_WORK
+    with_companions = (not neg) or (cheap if companions is None else bool(companions))
     for a in movable:
         j = free[a]
+        if not with_companions:
+            # w_p <= 0: every direction of the cone has gbar@delta >= 0 (the best group's mean return is at least
+            # the worst's), so one that moves w_j plus the improving one (best_dir) moves w_j and improves: movable
+            # features are exactly the unbounded ones
+            recess[j][-1] = None
+            tick.step()
+            continue
         for sgn in signs:
-            if lower[sgn][a] > _T_MIN and lower[sgn][a] >= t_up - 1e-9:
-                t_star, d0 = float(lower[sgn][a]), found[lower_at[sgn][a]]
-            else:
-                # max t  s.t.  delta in the recession cone, |delta| <= 1, sgn*delta_j >= t, gbar@delta >= t.
-                obj = np.zeros(nv)
-                obj[it] = -1.0
-                bnd = [((-1.0, 0.0) if neg else (-1.0, 1.0))] * p + free_uv + [(0.0, 1.0)] + [(0.0, 0.0)] * p
-                extra = np.zeros((2, nv))
-                extra[0, a], extra[0, it] = -sgn, 1.0     # t - sgn*delta_j <= 0
-                extra[1, :p], extra[1, it] = -gbar, 1.0   # t - gbar@delta <= 0 (strict improvement, not flat)
-                x = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=np.zeros(2), slot="recession")
-                if x is None or x[it] <= _T_MIN:
-                    continue
-                add_direction(x[:p].copy())
-                t_star, d0 = float(x[it]), x[:p]
-            # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others.
-            d0 = d0 / abs(d0[a])
-            # Half the best improvement t* (the LP's optimal value), not half that of the vertex HiGHS returned
-            # (gbar @ d0 >= t*): which optimal vertex comes back depends on the solver's path (on a constant shift of a
-            # column, a warm start), and the companions and coefficients of the sparsest direction changed with it.
-            eps = 0.5 * t_star
+            # Sparsest companions: fix sgn*delta_j = 1, minimise sum |delta_i| over the others, improving by >= eps.
             obj = np.zeros(nv)
             bnd = [((None, 0.0) if neg else (None, None))] * p + free_uv + [(0.0, 0.0)] + [(0.0, None)] * p
             bnd[a] = (sgn, sgn)
@@ -1395,22 +1414,39 @@ def identify(
             rhs = np.zeros(extra.shape[0])
             rhs[0] = -eps                              # gbar@delta >= eps
             y = lp.solve(obj, bnd, homogeneous=True, extra_A=extra, extra_b=rhs, slot="sparsest")
-            delta = (y[:p] if y is not None else d0) / s
+            if y is None:  # no direction moves w_j this way and improves the ranking: bounded on this side
+                continue
+            delta = y[:p] / s
             recess[j][int(sgn)] = delta / np.abs(delta).max()
         tick.step()
 
     # ---- separating set S_alpha and the separation scales
+    tick.close()
+    tick = _Progress(progress and p > 0, "identify: separation scales", total=p, t0=t0)
     zero = np.zeros(nv)
+    if neg:  # the point of S_alpha with the smallest sum |w_j|: its zeros settle upper ends (below)
+        zero[:p] = -1.0
     x0 = lp.solve(zero, w_bounds(), homogeneous=False)
     separable = x0 is not None
     rng: dict[int, tuple[float, float]] = {}
-    tick.close()
-    tick = _Progress(progress and separable and p > 0, "identify: separation scales", total=p, t0=t0)
     if separable:
-        # A point of S_alpha with w_j = 0 settles the upper end of w_j <= 0 (it is 0) without an LP; the vertices
-        # HiGHS returns have few non-zero penalties, so with many features most ends are settled by the points
-        # already found (the feasibility LP's and those of the ends solved so far).
+        # A point of S_alpha with w_j = 0 settles the upper end of w_j <= 0 (it is 0) without an LP. The smallest
+        # sum |w| (x0) has few non-zero penalties; then, while that finds new zeros, the point with the smallest sum
+        # |w_j| over the features not yet settled (the settled ones free within the first box: any point of S_alpha
+        # in a box is one of S_alpha). What is left needs its own end LP (the points those return settle more). With
+        # 1,000 dense features: 1 such LP and no end LP, where 55 end LPs took 42 s.
         at_zero = (x0[:p] == 0.0) if neg else np.zeros(p, dtype=bool)
+        while neg and not at_zero.all():
+            obj = np.zeros(nv)
+            obj[:p] = np.where(at_zero, 0.0, -1.0)
+            xz = lp.solve(obj, w_bounds(_END_BOXES[0]), homogeneous=False, slot="zeros")
+            tick.step(0)  # a refresh: a long LP shows the bar
+            if xz is None:  # S_alpha lies outside the box: the end LPs decide
+                break
+            new_zero = (xz[:p] == 0.0) & ~at_zero
+            if not new_zero.any():
+                break
+            at_zero |= new_zero
         for a, j in enumerate(free):
             tick.step()
             ends = []
@@ -1458,12 +1494,16 @@ def identify(
                 mp = 0.0
         ways = sorted(recess[j])
         direction = None if not ways else ("both" if len(ways) == 2 else ("-inf" if ways[0] < 0 else "+inf"))
-        rec = tuple(_named(recess[j][w], free, names) for w in ways)
+        rec = tuple(_named(recess[j][w], free, names) for w in ways if recess[j][w] is not None)
         if not ident:
             partners = [names[i] for i in flat_groups[j][0] if i != j]
             reason = (f"affinely dependent on {', '.join(partners)}{' and others' if flat_groups[j][1] else ''}: "
                       "a combination of these penalties leaves every "
                       "return difference unchanged, so only combinations are identified")
+        elif direction and not rec:
+            reason = (f"unbounded ({direction}); its companions were not computed ({len(movable)} unbounded "
+                      "penalties, one LP each: identify(companions=True), `pbicrl identify --companions`)"
+                      + (f"; separation scale {mp:.4g}" if mp is not None else "; not separable at this alpha"))
         elif direction:
             others = ", ".join(k for k in rec[0] if k != n)
             reason = (f"unbounded ({direction})" + (f" together with {others}" if others else " on its own")
@@ -1498,7 +1538,7 @@ def identify(
         feature_names=names, features=tuple(feats), separable=separable, alpha=alpha, beta=beta,
         margins=mar, penalty_sign=penalty_sign, nominal_weights=np.asarray(wn, dtype=np.float64).copy(),
         group_labels=tuple(int(k) for k in labels), unbounded_directions=tuple(seen.values()),
-        parameters=tuple(params), n_lp=lp.n_lp, runtime_s=time.perf_counter() - t0)
+        parameters=tuple(params), n_lp=lp.n_lp, runtime_s=time.perf_counter() - t0, companions=with_companions)
 
 
 _MARGIN_COLUMN = "__pair_margin__"
@@ -1532,7 +1572,7 @@ def _identify_pairs(dataset: Dataset, preferences: Preferences, pairs_seed: int 
     cset = _constraint_set(dataset, kw["constraints"])
     cand = _resolve_candidates(dataset, kw["candidates"], cset)
     sub = identify(pseudo, beta=beta, alpha=kw["alpha"], candidates=[names[j] for j in cand] or [_MARGIN_COLUMN],
-                   penalty_sign=kw["penalty_sign"], nominal_weights=np.append(wn, 1.0))
+                   penalty_sign=kw["penalty_sign"], nominal_weights=np.append(wn, 1.0), companions=kw["companions"])
     # The ends of w_j over S_alpha straight from the pair rows (one LP each, every row present): the group LP's
     # cutting planes stop at a tolerance that grows with the box an unbounded companion runs to.
     from scipy.optimize import linprog
@@ -1572,7 +1612,7 @@ def _identify_pairs(dataset: Dataset, preferences: Preferences, pairs_seed: int 
         feature_names=tuple(names), features=tuple(feats), separable=feasible, alpha=sub.alpha, beta=beta,
         margins=Margins.parse(kw["margins"], labels.size), penalty_sign=kw["penalty_sign"], nominal_weights=wn.copy(),
         group_labels=tuple(int(k) for k in labels), unbounded_directions=sub.unbounded_directions,
-        parameters=params, n_lp=sub.n_lp, runtime_s=time.perf_counter() - t0,
+        parameters=params, n_lp=sub.n_lp, runtime_s=time.perf_counter() - t0, companions=sub.companions,
         pairs={"protocol": preferences.protocol, "n_pairs": int(I.size), "seed": pairs_seed,
                "parameters_from": "groups" if params else None})
 

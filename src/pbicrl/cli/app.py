@@ -245,6 +245,9 @@ def _add_identify(sub: Any) -> None:
     _add_model_options(p)
     _add_pair_options(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    p.add_argument("--companions", action=argparse.BooleanOptionalAction, default=None,
+                   help="find, for every unbounded penalty, the sparsest set of penalties that must run off with it "
+                        "(one LP each; default: for up to 200 unbounded penalties, when the LPs are small)")
     p.set_defaults(func=_cmd_identify)
 
 
@@ -272,7 +275,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     res = identify(ds, nominal_weights=cfg.nominal_weights, beta=cfg.beta, margins=cfg.margins, alpha=cfg.alpha,
                    candidates=cfg.candidates, penalty_sign=cfg.penalty_sign, constraints=cset,  # type: ignore[arg-type]
                    preferences=prefs, pairs_seed=cfg.pairs_seed if prefs is not None else None,
-                   progress=True)
+                   progress=True, companions=args.companions)
     if args.json:
         print(json.dumps(res.to_dict(), indent=2, allow_nan=False))
     else:
