@@ -249,3 +249,28 @@ def test_shipped_halfcheetah_demos_match_their_record_and_rules():
     dx = np.abs(np.diff(x))  # the stored speed is |dx| / dt (dt 0.05) of the stored x, within an episode
     inner = np.setdiff1d(np.arange(1, len(x)), off[1:-1])
     np.testing.assert_array_equal(ds.features[inner, 0], dx[inner - 1] / 0.05)
+
+
+@pytest.mark.parametrize("name, env_id", [("icrl_halfcheetah", "pbicrl/BlockedHalfCheetah-v0"),
+                                          ("icrl_ant", "pbicrl/BlockedAnt-v0"),
+                                          ("icrl_walker", "pbicrl/BlockedWalker-v0")])
+def test_every_shipped_wall_dataset_matches_its_record_and_rules(name, env_id):
+    """Each shipped ICRL demonstration set is the file its record describes, 100 per group, each episode labelled by
+    the number of its steps beyond the wall (x < -3 after the step), never by the policy that made it."""
+    import hashlib
+
+    import pbicrl
+    from pbicrl.inference.data import shipped_dir
+
+    path = shipped_dir() / f"{name}.npz"
+    rec = json.loads(path.with_suffix(".json").read_text())
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == rec["file_sha256"]
+    ds = pbicrl.load_dataset(name)
+    assert ds.env_id == env_id and rec["env_id"] == env_id
+    assert list(np.bincount(ds.group)[1:]) == [100, 100, 100]
+    rules = DemoRules(rec["rules"]["brief_max_steps"], rec["rules"]["through_min_steps"])
+    off, x = ds.offsets, ds.states[:, 0]
+    n_v = np.array([np.sum(x[off[i]:off[i + 1]] < -3.0) for i in range(ds.n_trajectories)])
+    assert [classify_episode(n, rules) for n in n_v] == list(ds.group)
+    assert n_v[ds.group == 1].max() == 0 and n_v[ds.group == 2].min() >= 1
+    assert n_v[ds.group == 3].min() >= rec["rules"]["through_min_steps"]
