@@ -191,6 +191,12 @@ def test_report_on_synthetic_runs(tmp_path):
     pytest.importorskip("matplotlib")
     assert (tmp_path / "out" / "figures" / "icrl_halfcheetah.png").stat().st_size > 1000
     assert "![halfcheetah](figures/icrl_halfcheetah.png)" in md
+    # learning curves: every evaluation of every seed (finished or not), for a reader to see convergence
+    assert ppo["per_seed"]["seed0"]["eval_curve"] == {"steps": [1000, 1000], "violation_rate": [0.0, 1.0],
+                                                      "feasible_reward": [5.0, 15.0]}
+    assert res["tasks"]["halfcheetah"]["ppo_lag_inferred"]["per_seed"]["seed0"]["eval_curve"]["steps"] == [500]
+    assert (tmp_path / "out" / "figures" / "icrl_halfcheetah_curves.png").stat().st_size > 1000
+    assert "![halfcheetah curves](figures/icrl_halfcheetah_curves.png)" in md and "Learning curves" in md
 
 
 def test_report_names_a_started_run_without_progress(tmp_path):

@@ -3,7 +3,9 @@ r"""``pbicrl benchmark icrl report``: the ICRL benchmark's table and figures fro
 Reads ``<runs>/<task>/<method>/seed<k>/`` written by :func:`pbicrl.experiments.icrl_benchmark.train_policy`
 (an ICL run in the same layout under the method ``icl``) and writes ``report.md``, ``results.json`` and one
 figure per task (``figures/icrl_<task>.png``: violation rate against feasible cumulative reward, methods as
-points with error bars of one standard deviation over seeds).
+points with error bars of one standard deviation over seeds) and its learning curves
+(``figures/icrl_<task>_curves.png``: both metrics of every evaluation against the training steps, per seed and
+method, so a reader sees whether a row's policies had converged).
 
 Metrics, as the benchmark defines them (``shared/notes/icrl-benchmark.md`` section 2), per seed, from the
 **evaluation episodes of the stochastic policy** at the run's last evaluation (``eval.jsonl``: 10 episodes, 100
@@ -85,6 +87,11 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
                    feasible_reward=float(np.mean([e["reward_nc"] for e in eps])),
                    reward=float(np.mean([e["reward"] for e in eps])), eval_episodes=len(eps),
                    eval_steps=evals[-1].get("steps"))
+        rows = [r for r in evals if r.get("episodes") and r.get("steps") is not None]
+        out["eval_curve"] = {  # every evaluation, for the learning curves
+            "steps": [int(r["steps"]) for r in rows],
+            "violation_rate": [float(np.mean([e.get("constraint", np.nan) for e in r["episodes"]])) for r in rows],
+            "feasible_reward": [float(np.mean([e.get("reward_nc", np.nan) for e in r["episodes"]])) for r in rows]}
         if out["steps"] is None:
             out["steps"] = evals[-1].get("steps")
     if curve:
@@ -271,7 +278,15 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
             lines.append(f"| {t} | {wall} | {n_found} of {n_all} | x {'<' if spec.side == 'behind' else '>'} "
                          f"{spec.wall:g} |")
     if drawn:
-        lines += [""] + [f"![{t}]({p})" for t, p in drawn.items()]
+        lines += [""] + [f"![{t}]({p})" for t, p in drawn.items() if not t.endswith(" curves")]
+        curves = [(t, p) for t, p in drawn.items() if t.endswith(" curves")]
+        if curves:
+            lines += ["", "Learning curves: both metrics at every evaluation (10 stochastic episodes, 100 for the "
+                      "pendulum) against the training steps; thin lines are seeds (finished or still training), "
+                      "the thick line of each method the mean over its seeds at the steps they all reached. The "
+                      "`ppo_lag_true` curves are the reference expert's: a row's numbers mean something once its "
+                      "curve has flattened.", ""]
+            lines += [f"![{t}]({p})" for t, p in curves]
     if fig_note:
         lines += ["", fig_note]
     return "\n".join(lines) + "\n"
@@ -307,4 +322,40 @@ def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
             fig.savefig(tmp, format="png", dpi=120)
         plt.close(fig)
         drawn[t] = f"figures/{name}"
+        curve = _curve_figure(t, rows, fig_dir, plt, atomic_path)
+        if curve:
+            drawn[f"{t} curves"] = curve
     return drawn
+
+
+def _curve_figure(t: str, rows: dict[str, Any], fig_dir: Path, plt: Any, atomic_path: Any) -> str | None:
+    """Feasible reward and violation rate of every evaluation against the steps: one thin line per seed, the
+    mean over the seeds on the steps they share as a thick line, one colour per method."""
+    series = [(m, [v["eval_curve"] for v in a["per_seed"].values() if v.get("eval_curve", {}).get("steps")])
+              for m, a in rows.items()]
+    series = [(m, cs) for m, cs in series if cs]
+    if not series:
+        return None
+    fig, axes = plt.subplots(2, 1, figsize=(6, 5.2), sharex=True)
+    for i, (m, cs) in enumerate(series):
+        colour = f"C{i}"
+        for k, key in enumerate(("feasible_reward", "violation_rate")):
+            for c in cs:
+                axes[k].plot(np.asarray(c["steps"]) / 1e6, c[key], color=colour, lw=0.6, alpha=0.45)
+            common = sorted(set.intersection(*(set(c["steps"]) for c in cs)))
+            if common:
+                mean = [np.mean([c[key][c["steps"].index(st)] for c in cs]) for st in common]
+                axes[k].plot(np.asarray(common) / 1e6, mean, color=colour, lw=2.0,
+                             label=f"{_LABELS[m]} ({len(cs)} seed{'s' if len(cs) > 1 else ''})" if k == 0 else None)
+    axes[0].set_ylabel("feasible cumulative reward")
+    axes[1].set_ylabel("constraint violation rate")
+    axes[1].set_ylim(-0.05, 1.05)
+    axes[1].set_xlabel("training steps (millions)")
+    axes[0].set_title(f"{t}: evaluations during training (thin: seeds, thick: mean)")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    name = f"icrl_{t}_curves.png"
+    with atomic_path(fig_dir / name) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+    return f"figures/{name}"
