@@ -8,3 +8,6 @@ $R ant:ppo_lag_true:1:3000000 >> $OUT/train.log 2>&1
 $R ant:ppo_lag_inferred:1:3000000 --inferred-run $INFER/ant_wall >> $OUT/train_inferred.log 2>&1
 $R ant:ppo_lag_true:2:3000000 >> $OUT/train.log 2>&1
 $R ant:ppo_lag_inferred:2:3000000 --inferred-run $INFER/ant_wall >> $OUT/train_inferred.log 2>&1
+# appended in session 15: Ant seeds 3 (both costs), toward the 5 seeds per row
+$R ant:ppo_lag_true:3:3000000 >> $OUT/train.log 2>&1
+$R ant:ppo_lag_inferred:3:3000000 --inferred-run $INFER/ant_wall >> $OUT/train_inferred.log 2>&1
