@@ -347,6 +347,30 @@ def test_envs_writers_replace_a_file_only_with_overwrite(tmp_path, capsys):
     assert rc == 2 and pol.read_text() == "policy", err
 
 
+def test_demos_wall_never_writes_over_a_real_policy_and_a_short_run_is_a_clean_error(rl, tmp_path, capsys):
+    """The replay of session 15: with a real policy (a text file is refused as 'not a zip archive' before any output
+    check) the --report may not be an input; and a run whose rollouts cannot fill a group ended in a RuntimeError
+    traceback, now a one-line error naming --max-attempts-factor."""
+    pytest.importorskip("mujoco")
+    import hashlib
+    import shutil
+
+    from pbicrl.inference.data import shipped_dir
+
+    good, bad = tmp_path / "good.zip", tmp_path / "bad.zip"
+    shutil.copy(shipped_dir() / "policies" / "ant_good.zip", good)
+    shutil.copy(shipped_dir() / "policies" / "ant_violating.zip", bad)
+    digest = hashlib.sha256(good.read_bytes()).hexdigest()
+    rc, err = _cli(capsys, ["envs", "demos-wall", "--env", "ant", "--good-policy", str(good), "--violating-policy",
+                            str(bad), "--out", str(tmp_path / "w"), "--report", str(good), "--overwrite"])
+    assert rc == 2 and "--report" in err and hashlib.sha256(good.read_bytes()).hexdigest() == digest, err
+    rc, err = _cli(capsys, ["envs", "demos-wall", "--env", "ant", "--good-policy", str(good), "--violating-policy",
+                            str(bad), "--out", str(tmp_path / "w"), "-n", "1", "--steps", "20",
+                            "--max-attempts-factor", "2"])
+    assert rc == 2 and "acceptable rollouts" in err and "--max-attempts-factor" in err, err
+    assert not (tmp_path / "w.npz").exists()
+
+
 # --------------------------------------------------------------------------------- 5-6. labelling server
 @pytest.fixture
 def label_client(tmp_path):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import warnings
 
-__all__ = ["PbicrlWarning", "warn"]
+__all__ = ["PbicrlWarning", "DemonstrationError", "warn"]
 
 
 class PbicrlWarning(UserWarning):
@@ -23,3 +23,9 @@ class PbicrlWarning(UserWarning):
 def warn(message: str, *, stacklevel: int = 2) -> None:
     """Issue ``message`` as a :class:`PbicrlWarning` (attributed to the caller's caller by default)."""
     warnings.warn(message, PbicrlWarning, stacklevel=stacklevel + 1)
+
+
+class DemonstrationError(RuntimeError, ValueError):
+    """The policies given to a demonstration generator did not produce the behaviour a group needs within its
+    attempt limit (the message has the counts). A ``RuntimeError`` as before, and a ``ValueError`` so the command
+    line reports it as a one-line error about its input (the policies), not a traceback."""

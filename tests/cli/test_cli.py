@@ -195,3 +195,16 @@ def test_identify_companions_on_and_off(capsys):
     assert all(bare["features"][n]["recession"] == [] and bare["features"][n]["unbounded"] for n in unb)
     assert [f["min_penalty"] for f in bare["features"].values()] == \
         pytest.approx([f["min_penalty"] for f in full["features"].values()])
+
+
+def test_identify_out_of_memory_names_what_to_reduce(capsys, monkeypatch):
+    """The replay of session 15: identify out of memory advised 'fewer chains/draws', which identify has not."""
+    import pbicrl.analysis.identify as ident
+
+    def boom(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(ident, "identify", boom)
+    assert main(["identify", "example"]) == 2
+    err = capsys.readouterr().err
+    assert "out of memory" in err and "--candidates" in err and "chains" not in err, err

@@ -540,7 +540,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"pbicrl: error: {msg}", file=sys.stderr)
         return 2
     except MemoryError:
-        print("pbicrl: error: out of memory; use a smaller dataset or fewer chains/draws", file=sys.stderr)
+        fewer = "candidates (--candidates)" if getattr(args, "func", None) is _cmd_identify else "chains/draws"
+        print(f"pbicrl: error: out of memory; use a smaller dataset or fewer {fewer}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("pbicrl: interrupted; no output written", file=sys.stderr)

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl._atomic import write_text
+from pbicrl.errors import DemonstrationError
 from pbicrl.demonstrators.nav_envs import make_nav_env, nav_spec
 from pbicrl.demonstrators.nav_rollouts import Episode, policy_actor, rollout_episodes
 from pbicrl.demonstrators.nav_training import sac_budget
@@ -236,8 +237,8 @@ def generate_paper_protocol_demos(env: str, good_policy: str | os.PathLike, viol
         torch.set_num_threads(old_threads)
     short = [g for g in (1, 2, 3) if counts[g] < n_per_group]
     if short and len([g for g in (1, 2, 3) if counts[g] == 0]) > 1:
-        raise RuntimeError(f"demos: groups {short} hold fewer than {n_per_group} trajectories after {n_run} rollouts; "
-                           "the policies do not produce the intended behaviour")
+        raise DemonstrationError(f"demos: groups {short} hold fewer than {n_per_group} trajectories after {n_run} "
+                                 "rollouts; the policies do not produce the intended behaviour")
     episodes = sorted(kept, key=lambda e: e.group)  # stable: rollout order within a group
     ds = Dataset.from_trajectories([e.features for e in episodes], [e.group for e in episodes],
                                    states=[e.states for e in episodes], feature_names=task.feature_names,

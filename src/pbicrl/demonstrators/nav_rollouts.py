@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbicrl._atomic import write_text
+from pbicrl.errors import DemonstrationError
 from pbicrl.demonstrators.nav_envs import make_nav_env, nav_spec
 from pbicrl.demonstrators.nav_training import sac_budget
 from pbicrl.inference.data import Dataset
@@ -138,7 +139,7 @@ def generate_navigation_demos(env: str, good_policy: str | os.PathLike | None, v
     episodes = kept[1] + kept[2] + kept[3]
     missing = [g for g in (1, 2, 3) if not kept[g]]
     if len(missing) > 1:
-        raise RuntimeError(f"demos: groups {missing} are empty after {max_episodes} rollouts per policy; "
+        raise DemonstrationError(f"demos: groups {missing} are empty after {max_episodes} rollouts per policy; "
                            "the policies do not produce the intended behaviour")
     ds = Dataset.from_trajectories([e.features for e in episodes], [e.group for e in episodes],
                                    states=[e.states for e in episodes], feature_names=task.feature_names,

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from pbicrl._atomic import atomic_path
+from pbicrl.errors import DemonstrationError
 
 __all__ = ["MODES", "generate_wall_demos", "plot_wall_visitation", "train_wall_policy"]
 
@@ -183,7 +184,7 @@ def generate_wall_demos(name: str, good_policy: str | os.PathLike, violating_pol
 
     Raises
     ------
-    RuntimeError
+    pbicrl.errors.DemonstrationError
         If a group cannot be filled within the attempt limit (with the counts).
     """
     import torch
@@ -219,9 +220,10 @@ def generate_wall_demos(name: str, good_policy: str | os.PathLike, violating_pol
         while kept < n_per_group:
             if attempts >= max_attempts_factor * n_per_group:
                 env.close()
-                raise RuntimeError(
+                raise DemonstrationError(
                     f"{name} {mode}: only {kept}/{n_per_group} acceptable rollouts in {attempts} attempts "
-                    f"({rej_len} too short, {rej_side} on the wrong side of the wall)")
+                    f"({rej_len} too short, {rej_side} on the wrong side of the wall); check that the {mode} policy "
+                    f"does what its group needs, or raise --max-attempts-factor (now {max_attempts_factor:g})")
             ro = rollout_wall_env(env, act, seed=seed + 100_000 * g + attempts, n_steps=n_steps)
             attempts += 1
             if quantize:
