@@ -353,3 +353,22 @@ def test_progress_shows_while_one_lp_takes_long(monkeypatch, capfd):
     identify(ds, **kw, progress=True)
     assert "identify: unbounded penalties" in during[0], during
     assert during[0].count("\r") >= 2, during  # drawn, then redrawn with its clock one second on
+
+
+def test_each_phase_frees_its_lp_models(monkeypatch):
+    """The replay of session 15: with 10,000 dense features every HiGHS model (a copy of 6 million non-zeros) stayed
+    alive to the end and the analysis passed a 4 GB address-space cap; a phase's models are now freed when it ends."""
+    pytest.importorskip("highspy")
+    monkeypatch.setattr(identify_module, "_WARM", True)
+    made = []
+    init = identify_module._LPSolver.__init__
+
+    def keep(self, *a, **k):
+        init(self, *a, **k)
+        made.append(self)
+
+    monkeypatch.setattr(identify_module._LPSolver, "__init__", keep)
+    res = identify(_dense(45, 60, seed=3), alpha=0.2, companions=True)
+    assert res.separable and res.unbounded.any()
+    left = set(made[0]._models)
+    assert not left & {"support", "sparsest", "zeros"}, left
