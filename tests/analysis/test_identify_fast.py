@@ -92,6 +92,16 @@ def _is_recession_direction(ds: Dataset, d: dict) -> bool:
     return ordered and r[ds.group == labels[0]].mean() - r[ds.group == labels[-1]].mean() > tol
 
 
+def _same_scale_and_ends(f, g) -> None:
+    """The separation scale and the ends of S_alpha of two entries agree (to the LP tolerance; infinite ends exactly)."""
+    if g.min_penalty is None:
+        assert f.min_penalty is None
+        return
+    assert f.min_penalty == pytest.approx(g.min_penalty, rel=1e-6, abs=1e-7)
+    for x, y in zip(f.penalty_range, g.penalty_range):
+        assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-6, abs=1e-7)
+
+
 def _companions_removed(reason: str) -> str:
     return reason.split(";")[0].split(" together with")[0].split(" on its own")[0]
 
@@ -111,12 +121,7 @@ def test_the_fast_analysis_gives_the_reference_answers(seed, warm, monkeypatch):
         if f.reason.split(";")[0] != g.reason.split(";")[0]:  # only the companions may differ, see below
             assert _companions_removed(f.reason) == _companions_removed(g.reason), (seed, f.reason, g.reason)
             assert f.recession != g.recession
-        if g.min_penalty is None:
-            assert f.min_penalty is None
-        else:
-            assert f.min_penalty == pytest.approx(g.min_penalty, rel=1e-6, abs=1e-7)
-            for x, y in zip(f.penalty_range, g.penalty_range):
-                assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-6, abs=1e-7)
+        _same_scale_and_ends(f, g)
         assert len(f.recession) == len(g.recession)
         for d_new, d_old in zip(f.recession, g.recession):
             # the sparsest direction is a vertex of an LP; where there are several, any is right: check it is one
@@ -258,12 +263,7 @@ def test_without_companions_the_same_unbounded_penalties_and_ends(seed):
     assert new.companions == (kw["penalty_sign"] == "any")  # "any": the deciding LP is the companions' LP
     for f, g in zip(new.features, old.features):
         assert (f.identifiable, f.unbounded, f.direction) == (g.identifiable, g.unbounded, g.direction), (seed, f, g)
-        if g.min_penalty is None:
-            assert f.min_penalty is None
-        else:
-            assert f.min_penalty == pytest.approx(g.min_penalty, rel=1e-6, abs=1e-7)
-            for x, y in zip(f.penalty_range, g.penalty_range):
-                assert x == y if math.isinf(y) else x == pytest.approx(y, rel=1e-6, abs=1e-7)
+        _same_scale_and_ends(f, g)
         if kw["penalty_sign"] == "negative":
             assert f.recession == ()
             if f.unbounded and f.identifiable:
