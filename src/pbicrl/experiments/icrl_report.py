@@ -38,6 +38,7 @@ __all__ = ["REPORT_METHODS", "build_report", "seed_metrics"]
 REPORT_METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
 _LABELS = {"ppo": "PPO (no constraint)", "ppo_lag_true": "PPO-Lagrangian, true cost",
            "ppo_lag_inferred": "PPO-Lagrangian, pbicrl inferred cost", "icl": "ICL baseline"}
+_COLOURS = {m: f"C{i}" for i, m in enumerate(REPORT_METHODS)}  # one colour per method in every figure
 
 
 def _read_jsonl(path: Path) -> list[dict[str, Any]]:
@@ -309,7 +310,7 @@ def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
         fig, ax = plt.subplots(figsize=(5, 3.6))
         for m, a in pts:
             (vx, vs), (fx, fs) = a["violation_rate"], a["feasible_reward"]
-            ax.errorbar([vx], [fx], xerr=[vs], yerr=[fs], fmt="o", capsize=3,
+            ax.errorbar([vx], [fx], xerr=[vs], yerr=[fs], fmt="o", capsize=3, color=_COLOURS[m],
                         label=f"{_LABELS[m]} ({a['seeds_done']} seed{'s' if a['seeds_done'] > 1 else ''})")
         ax.set_xlabel("constraint violation rate")
         ax.set_ylabel("feasible cumulative reward")
@@ -337,8 +338,8 @@ def _curve_figure(t: str, rows: dict[str, Any], fig_dir: Path, plt: Any, atomic_
     if not series:
         return None
     fig, axes = plt.subplots(2, 1, figsize=(6, 5.2), sharex=True)
-    for i, (m, cs) in enumerate(series):
-        colour = f"C{i}"
+    for m, cs in series:
+        colour = _COLOURS[m]
         for k, key in enumerate(("feasible_reward", "violation_rate")):
             for c in cs:
                 axes[k].plot(np.asarray(c["steps"]) / 1e6, c[key], color=colour, lw=0.6, alpha=0.45)
