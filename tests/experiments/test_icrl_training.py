@@ -308,7 +308,7 @@ def test_icl_method_resumes_and_its_run_is_reported(tmp_path):
 
 def test_icl_method_refuses_tasks_without_an_icl_environment(capsys, tmp_path):
     assert main(["--out", str(tmp_path), "--run", "pendulum:icl:0:100000"]) == 2
-    assert "method icl runs on ['ant', 'halfcheetah'] only" in capsys.readouterr().err
+    assert "method icl runs on ['ant', 'halfcheetah', 'walker'] only" in capsys.readouterr().err
     assert main(["--out", str(tmp_path), "--run", "halfcheetah:icl:0:100"]) == 2
     assert "too small for ICL's 8 rounds" in capsys.readouterr().err
     with pytest.raises(ValueError, match="icl_config"):

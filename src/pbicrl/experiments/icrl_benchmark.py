@@ -108,7 +108,7 @@ __all__ = [
 
 CHECKPOINT = "checkpoint.pt"
 METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
-ICL_TASKS: dict[str, str] = {"halfcheetah": "icrl_halfcheetah", "ant": "icrl_ant"}
+ICL_TASKS: dict[str, str] = {"halfcheetah": "icrl_halfcheetah", "ant": "icrl_ant", "walker": "icrl_walker"}
 """Tasks the ``icl`` method runs on -> their ICL environment (:func:`pbicrl.baselines.icl.icl_env`), which is also
 the name of the shipped dataset whose good group ICL learns from."""
 _ROLLOUT = 5 * 2048  # one update of the benchmark's PPO (expert_config): the unit of eval_every for icl too

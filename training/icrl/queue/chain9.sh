@@ -8,3 +8,5 @@
 $R walker:ppo_lag_inferred:0:3000000 --inferred-run $INFER/walker_wall >> $OUT/train_inferred.log 2>&1
 $R walker:ppo_lag_true:1:3000000 >> $OUT/train.log 2>&1
 $R walker:ppo_lag_inferred:1:3000000 --inferred-run $INFER/walker_wall >> $OUT/train_inferred.log 2>&1
+# appended in session 15: the ICL baseline on the walker (Ant's budgets: 6 rounds, 2.5 M PPO steps)
+$R walker:icl:0:2500000 >> $OUT/train_icl_walker.log 2>&1

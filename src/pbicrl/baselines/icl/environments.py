@@ -2,8 +2,8 @@
 constraint for evaluation) and the expert demonstrations it learns from.
 
 Two families: the project's wall tasks (``"halfcheetah"``, ``"ant"``: a wall in front at x = 8 / 10, and
-``"point_mass"``), and the ICRL benchmark's Blocked Half-Cheetah and Blocked Ant (``"icrl_halfcheetah"``,
-``"icrl_ant"``: :mod:`pbicrl.envs.icrl_benchmark`, the wall *behind* the start, a step violates iff its post-step
+``"point_mass"``), and the ICRL benchmark's Blocked Half-Cheetah, Ant and Walker (``"icrl_halfcheetah"``,
+``"icrl_ant"``, ``"icrl_walker"``: :mod:`pbicrl.envs.icrl_benchmark`, the wall *behind* the start, a step violates iff its post-step
 x < -3), whose expert coordinates are the good group of the shipped datasets of the same names.
 """
 
@@ -22,7 +22,7 @@ from pbicrl.baselines.icl.presets import ENVS
 __all__ = ["ICLEnv", "ICRLFactory", "ICRL_ICL_ENVS", "expert_coordinates", "hide_true_cost", "icl_env", "icrl_coord",
            "point_mass_expert_demos"]
 
-ICRL_ICL_ENVS: dict[str, str] = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant"}
+ICRL_ICL_ENVS: dict[str, str] = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant", "icrl_walker": "walker"}
 """ICL environment name -> ICRL benchmark task (:data:`pbicrl.envs.icrl_benchmark.ICRL_TASKS`); the shipped
 dataset with the task's ranked demonstrations has the same name as the ICL environment."""
 
@@ -160,7 +160,8 @@ def _obs_coord(obs: Any, info: dict) -> NDArray[np.float64]:
 
 def icl_env(name: str) -> ICLEnv:
     """The :class:`ICLEnv` of ``"halfcheetah"``, ``"ant"`` (walls at x = 8 and 10), ``"point_mass"``, or of the
-    ICRL benchmark's ``"icrl_halfcheetah"``, ``"icrl_ant"`` (walls behind the start: x < -3 violates).
+    ICRL benchmark's ``"icrl_halfcheetah"``, ``"icrl_ant"``, ``"icrl_walker"`` (walls behind the start: x < -3
+    violates).
 
     The CMSE grid spans ``[0, 2 * wall]`` on x (so that an all-0 or all-1 constraint scores 0.5), 401 points;
     the location is scanned up to ``5 * wall`` (from the lowest expert x, see :func:`run_icl`). For the point mass the grid is 43 x 43 over

@@ -11,8 +11,9 @@ from pbicrl.baselines.ppo_lagrangian import PPOLagConfig
 __all__ = ["PRESETS", "ENVS", "ICLConfig", "icl_preset"]
 
 PRESETS = ("smoke", "default", "paper")
-ENVS = ("halfcheetah", "ant", "point_mass", "icrl_halfcheetah", "icrl_ant")
-_PRESET_OF = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant"}  # the ICRL tasks use their robot's budgets
+ENVS = ("halfcheetah", "ant", "point_mass", "icrl_halfcheetah", "icrl_ant", "icrl_walker")
+# The ICRL tasks use their robot's budgets; the walker, which has none of its own, Ant's (500-step episodes too)
+_PRESET_OF = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant", "icrl_walker": "ant"}
 
 
 @dataclass
@@ -150,7 +151,8 @@ def icl_preset(name: str, env: str = "halfcheetah") -> ICLConfig:
         round (2.4x the default's RL; not run here). Not the authors' settings, which the PBICRL paper does not
         print (it reports ~20,000 s per ICL seed).
 
-    The ICRL benchmark's ``icrl_halfcheetah`` and ``icrl_ant`` get the budgets of ``halfcheetah`` and ``ant``.
+    The ICRL benchmark's ``icrl_halfcheetah`` and ``icrl_ant`` get the budgets of ``halfcheetah`` and ``ant``,
+    ``icrl_walker`` (no budgets of its own) those of ``ant``.
     """
     if name not in PRESETS:
         raise ValueError(f"budget: unknown preset {name!r}; choose one of {PRESETS}")
