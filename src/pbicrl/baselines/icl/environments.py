@@ -3,8 +3,8 @@ constraint for evaluation) and the expert demonstrations it learns from.
 
 Two families: the project's wall tasks (``"halfcheetah"``, ``"ant"``: a wall in front at x = 8 / 10, and
 ``"point_mass"``), and the ICRL benchmark's Blocked Half-Cheetah, Ant and Walker (``"icrl_halfcheetah"``,
-``"icrl_ant"``, ``"icrl_walker"``: :mod:`pbicrl.envs.icrl_benchmark`, the wall *behind* the start, a step violates iff its post-step
-x < -3), whose expert coordinates are the good group of the shipped datasets of the same names.
+``"icrl_ant"``, ``"icrl_walker"``: :mod:`pbicrl.envs.icrl_benchmark`, the wall *behind* the start, a step violates
+iff its post-step x < -3), whose expert coordinates are the good group of the shipped datasets of the same names.
 """
 
 from __future__ import annotations
