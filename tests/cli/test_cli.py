@@ -195,6 +195,8 @@ def test_identify_companions_on_and_off(capsys):
     assert all(bare["features"][n]["recession"] == [] and bare["features"][n]["unbounded"] for n in unb)
     assert [f["min_penalty"] for f in bare["features"].values()] == \
         pytest.approx([f["min_penalty"] for f in full["features"].values()])
+    assert main(["identify", "example", "--no-companions"]) == 0
+    assert "not computed for the 4 unbounded penalties" in capsys.readouterr().out
 
 
 def test_identify_out_of_memory_names_what_to_reduce(capsys, monkeypatch):

@@ -405,6 +405,10 @@ class Identification:
             lines.append(f"{f.name:<{w}}  {cand:>4}  {ident:>5}  {mp:>10}  {rng:>26}  {unb:>9}")
             if f.identifiable is False:
                 lines.append(f"{'':<{w}}    {f.reason}")
+        n_unb = int(self.unbounded.sum())
+        if not self.companions and n_unb:
+            lines += ["", f"directions along which the likelihood never decreases: not computed for the {n_unb:,} "
+                          "unbounded penalties (one LP each; `pbicrl identify --companions`)"]
         if self.unbounded_directions:
             lines += ["", "directions along which the likelihood never decreases (w_p + t*delta, t -> inf):"]
             lines += [f"  {i + 1}. {_direction_text(d)}" for i, d in enumerate(self.unbounded_directions)]
