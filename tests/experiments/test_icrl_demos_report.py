@@ -280,3 +280,21 @@ def test_every_shipped_wall_dataset_matches_its_record_and_rules(name, env_id):
     assert [classify_episode(n, rules) for n in n_v] == list(ds.group)
     assert n_v[ds.group == 1].max() == 0 and n_v[ds.group == 2].min() >= 1
     assert n_v[ds.group == 3].min() >= rec["rules"]["through_min_steps"]
+
+
+def test_report_checks_the_issue_targets_per_task(tmp_path):
+    """The targets table: boundary on the safe side (or within 0.1), violation at most 0.05 above the true cost's,
+    feasible reward at least 90% of it, and at least ICL's on both metrics."""
+    runs = tmp_path / "runs"
+    hc = runs / "halfcheetah"
+    _fake_seed(hc / "ppo_lag_true" / "seed0", [[(100.0, 100.0, 0), (100.0, 100.0, 0)]])
+    _fake_seed(hc / "ppo_lag_inferred" / "seed0", [[(85.0, 85.0, 0), (85.0, 85.0, 1)]],
+               config={"inferred_cost": {"mode": "conservative", "boundary": {"wall": [-3.05]}}})
+    _fake_seed(hc / "icl" / "seed0", [[(50.0, 50.0, 1), (60.0, 60.0, 0)]])
+    build_report(runs, tmp_path / "out", tasks=["halfcheetah"], figures=False)
+    md = (tmp_path / "out" / "report.md").read_text()
+    row = next(ln for ln in md.splitlines() if ln.startswith("| halfcheetah | -3.050"))
+    # -3.05 is 0.05 beyond the true x < -3 (within 0.1: met); violation 0.5 vs 0 (missed); 85 / 100 (missed);
+    # against ICL 0.5 vs 0.5 and 85 vs 55 (met)
+    assert row == ("| halfcheetah | -3.050 vs -3: unsafe side by 0.050 (met) | +0.50 (missed) | 0.85 (missed) | "
+                   "0.50 vs 0.50, 85 vs 55 (met) |"), row

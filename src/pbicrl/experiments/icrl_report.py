@@ -5,7 +5,8 @@ Reads ``<runs>/<task>/<method>/seed<k>/`` written by :func:`pbicrl.experiments.i
 figure per task (``figures/icrl_<task>.png``: violation rate against feasible cumulative reward, methods as
 points with error bars of one standard deviation over seeds) and its learning curves
 (``figures/icrl_<task>_curves.png``: both metrics of every evaluation against the training steps, per seed and
-method, so a reader sees whether a row's policies had converged).
+method, so a reader sees whether a row's policies had converged). ``report.md`` also checks issue 28's targets
+per task from the rows' means (boundary, violation, feasible reward, against ICL).
 
 Metrics, as the benchmark defines them (``shared/notes/icrl-benchmark.md`` section 2), per seed, from the
 **evaluation episodes of the stochastic policy** at the run's last evaluation (``eval.jsonl``: 10 episodes, 100
@@ -264,6 +265,7 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
                           for k, v in a["inferred_boundary"].items())
             lines.append(f"| {t} | {a.get('inferred_mode')} | {b} | x {'<' if spec.side == 'behind' else '>'} "
                          f"{spec.wall:g} |")
+    lines += _target_lines(res, names)
     icl = [(t, res["tasks"][t]["icl"]) for t in names if "icl" in res["tasks"][t]
            and res["tasks"][t]["icl"].get("icl_location_seeds")]
     if icl:
@@ -291,6 +293,50 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
     if fig_note:
         lines += ["", fig_note]
     return "\n".join(lines) + "\n"
+
+
+def _target_lines(res: dict[str, Any], names: Sequence[str]) -> list[str]:
+    """The issue's targets per task, from the rows' means: the inferred boundary on the safe side of the true wall or
+    within 0.1 of it; violation rate with the inferred cost at most 0.05 above the true cost's; feasible reward at
+    least 90% of the true cost's; at least ICL's on both metrics. '-' where a row has no finished seed."""
+    from pbicrl.envs.icrl_benchmark import icrl_task
+
+    out = ["", "Targets (means over the finished seeds; a row with fewer seeds than planned is provisional):", "",
+           "| task | boundary: safe side or within 0.1 | violation: inferred - true <= 0.05 | "
+           "feasible reward: inferred / true >= 0.9 | inferred vs ICL: violation <= and feasible >= |",
+           "|---|---|---|---|---|"]
+    any_row = False
+    for t in names:
+        rows = res["tasks"][t]
+        inf, tru, icl = (rows.get(m, {}) for m in ("ppo_lag_inferred", "ppo_lag_true", "icl"))
+        if not inf.get("seeds_done") and not inf.get("inferred_boundary"):
+            continue
+        any_row = True
+        spec = icrl_task(t)
+        b = next(iter((inf.get("inferred_boundary") or {}).values()), None)
+        if b:
+            gap = (spec.wall - b[0]) if spec.side == "infront" else (b[0] - spec.wall)  # > 0: on the safe side
+            bound = f"{b[0]:.3f} vs {spec.wall:g}: {'safe side' if gap >= 0 else 'unsafe side'} by {abs(gap):.3f}" + (
+                " (met)" if gap >= 0 or abs(gap) <= 0.1 else " (missed)")
+        else:
+            bound = "-"
+        have = bool(inf.get("seeds_done")) and bool(tru.get("seeds_done"))
+        if have:
+            dv = inf["violation_rate"][0] - tru["violation_rate"][0]
+            viol = f"{dv:+.2f} ({'met' if dv <= 0.05 else 'missed'})"
+            ratio = inf["feasible_reward"][0] / tru["feasible_reward"][0] if tru["feasible_reward"][0] > 0 else math.nan
+            feas = f"{ratio:.2f} ({'met' if ratio >= 0.9 else 'missed'})" if math.isfinite(ratio) else "-"
+        else:
+            viol = feas = "-"
+        if inf.get("seeds_done") and icl.get("seeds_done"):
+            ok = (inf["violation_rate"][0] <= icl["violation_rate"][0]
+                  and inf["feasible_reward"][0] >= icl["feasible_reward"][0])
+            vs = (f"{inf['violation_rate'][0]:.2f} vs {icl['violation_rate'][0]:.2f}, "
+                  f"{inf['feasible_reward'][0]:.0f} vs {icl['feasible_reward'][0]:.0f} ({'met' if ok else 'missed'})")
+        else:
+            vs = "-"
+        out.append(f"| {t} | {bound} | {viol} | {feas} | {vs} |")
+    return out if any_row else []
 
 
 def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
