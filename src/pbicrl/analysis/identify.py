@@ -1133,7 +1133,8 @@ def _flat_partners(X: NDArray[np.float64]) -> dict[int, tuple[list[int], bool]]:
     return out
 
 
-def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Progress) -> list[int]:
+def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Progress,
+                       gbar: NDArray[np.float64]) -> tuple[list[int], NDArray[np.float64] | None]:
     r"""The standardised features that some direction of the recession cone can move (penalties :math:`\le 0`).
 
     Every direction :math:`\delta` of the cone has :math:`\delta \le 0`, so :math:`\sum_{j \in R} -\delta_j` over
@@ -1142,9 +1143,13 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
     until its optimum is below the threshold of the per-feature test certifies that no other one can. Only the
     features found get the per-feature LPs, so a dataset with no unbounded penalty costs one or two LPs instead
     of one per feature (the per-feature LPs decide exactly as before: this only skips those that must fail).
+
+    Also returns the first of these directions that improves the ranking (:math:`\bar g^\top\delta > T_{min}`), or
+    ``None``: without companions that is all :func:`identify` needs to know that every feature found is unbounded.
     """
     rest = np.ones(p, dtype=bool)
     found: list[int] = []
+    improving = None
     bnd = [(-1.0, 0.0)] * p + free_uv + [(0.0, 0.0)] + [(0.0, 0.0)] * p
     while rest.any():
         obj = np.zeros(lp.n_var)
@@ -1153,12 +1158,14 @@ def _recession_support(lp: "_GroupLP", p: int, K: int, free_uv: list, tick: _Pro
         tick.step()
         if x is None or -float(obj[:p] @ x[:p]) <= _T_MIN:
             break
+        if improving is None and float(gbar @ x[:p]) > _T_MIN:
+            improving = x[:p].copy()
         hit = np.flatnonzero(rest & (x[:p] < -_T_MIN / (2.0 * p)))
         if hit.size == 0:
             break
         rest[hit] = False
         found.extend(int(a) for a in hit)
-    return sorted(found)
+    return sorted(found), improving
 
 
 def _improving(lp: "_GroupLP", p: int, free_uv: list, gbar: NDArray[np.float64], neg: bool,
@@ -1375,9 +1382,15 @@ def identify(
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
     tick = _Progress(progress, "identify: unbounded penalties", unit="LP", t0=t0)
-    movable = _recession_support(lp, p, K, free_uv, tick) if neg else list(range(p))
+    movable, seen = _recession_support(lp, p, K, free_uv, tick, gbar) if neg else (list(range(p)), None)
     lp.solver.drop("support")
-    best_dir = _improving(lp, p, free_uv, gbar, neg, tick) if movable else None
+    work = len(movable) * lp.rows_nnz(homogeneous=True) if movable else 0
+    cheap = len(movable) <= _COMPANION_MAX and work <= _COMPANION_WORK
+    with_companions = (not neg) or (cheap if companions is None else bool(companions))
+    if movable and not with_companions and seen is not None:
+        best_dir = seen  # an improving direction exists: every movable penalty is unbounded (below); no LP for g*
+    else:
+        best_dir = _improving(lp, p, free_uv, gbar, neg, tick) if movable else None
     if best_dir is None:
         movable = []
     tick.close()
@@ -1391,10 +1404,7 @@ def identify(
     # grows without bound where the sum's a-th coordinate crosses 0). So that LP is feasible exactly when the penalty is
     # unbounded in that direction, and it decides it: no per-feature max-t LP (which, with dense features, was 3/4 of
     # the time: one O(N p) LP per feature, none settled by another's vertex).
-    eps = 0.5 * min(1.0, float(gbar @ best_dir)) if best_dir is not None else 0.0
-    work = len(movable) * lp.rows_nnz(homogeneous=True) if movable else 0
-    cheap = len(movable) <= _COMPANION_MAX and work <= _COMPANION_WORK
-    with_companions = (not neg) or (cheap if companions is None else bool(companions))
+    eps = 0.5 * min(1.0, float(gbar @ best_dir)) if best_dir is not None else 0.0  # g* exact: _improving's
     for a in movable:
         j = free[a]
         if not with_companions:
