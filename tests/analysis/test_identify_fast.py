@@ -372,3 +372,31 @@ def test_each_phase_frees_its_lp_models(monkeypatch):
     assert res.separable and res.unbounded.any()
     left = set(made[0]._models)
     assert not left & {"support", "sparsest", "zeros"}, left
+
+
+def test_an_interrupted_analysis_leaves_no_bar_redrawing(monkeypatch, capfd):
+    """Ctrl-C (or any error) in the middle of identify: the bar's redraw thread must stop with it, not print to the
+    terminal every second for the rest of the session (a notebook keeps the interrupted frame alive)."""
+    monkeypatch.setattr(identify_module, "_PROGRESS_DELAY_S", 0.0)
+    made = []
+    init = identify_module._Progress.__init__
+
+    def keep(self, *a, **k):
+        init(self, *a, **k)
+        made.append(self)
+
+    monkeypatch.setattr(identify_module._Progress, "__init__", keep)
+    slow = identify_module._LPSolver.solve
+    calls = []
+
+    def solve(self, *a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return slow(self, *a, **k)
+
+    monkeypatch.setattr(identify_module._LPSolver, "solve", solve)
+    ds, kw = _problem(3)
+    with pytest.raises(KeyboardInterrupt):
+        identify(ds, **kw, progress=True)
+    assert made and all(p._ticker is None or not p._ticker.is_alive() for p in made)

@@ -1028,8 +1028,10 @@ class _Progress:
     per LP; HiGHS releases the GIL while it solves)."""
 
     def __init__(self, enabled: bool, what: str, total: int | None = None, unit: str = "feature",
-                 t0: float | None = None) -> None:
+                 t0: float | None = None, into: list["_Progress"] | None = None) -> None:
         self.bar = None
+        if into is not None:
+            into.append(self)
         self._stop = threading.Event()
         self._ticker: threading.Thread | None = None
         if enabled:
@@ -1275,6 +1277,23 @@ def identify(
     second, with 1,000 dense features under 10 s, with 10,000 dense ones (6 million non-zeros per LP) a minute or
     two (``benchmarks/reports/identify.md``).
     """
+    bars: list[_Progress] = []
+    try:
+        return _identify(dataset, nominal_weights=nominal_weights, beta=beta, margins=margins, alpha=alpha,
+                         candidates=candidates, penalty_sign=penalty_sign, constraints=constraints,
+                         preferences=preferences, pairs_seed=pairs_seed, progress=progress, companions=companions,
+                         bars=bars)
+    finally:  # an error or Ctrl-C mid-way must not leave a bar's redraw thread printing
+        for bar in bars:
+            bar.close()
+
+
+def _identify(dataset: Dataset, *, nominal_weights: ArrayLike | None, beta: float, margins: Margins | ArrayLike | None,
+              alpha: float, candidates: Sequence[str | int] | None, penalty_sign: PenaltySign,
+              constraints: ConstraintSet | Sequence[Constraint | dict] | None, preferences: Preferences | None,
+              pairs_seed: int | None, progress: bool, companions: bool | None,
+              bars: list[_Progress]) -> Identification:
+    """The body of :func:`identify`; ``bars`` collects the progress bars it opens (the caller closes them)."""
     t0 = time.perf_counter()
     if not isinstance(dataset, Dataset):
         raise IdentifyError(f"dataset: expected a pbicrl.inference.data.Dataset, got {type(dataset).__name__}")
@@ -1381,7 +1400,7 @@ def identify(
     # ---- recession analysis (independent of alpha, beta, margins)
     gbar = X[starts[0]:starts[1]].mean(axis=0) - X[starts[K - 1]:starts[K]].mean(axis=0) if p else np.zeros(0)
     recess: dict[int, dict[int, NDArray[np.float64]]] = {j: {} for j in free}
-    tick = _Progress(progress, "identify: unbounded penalties", unit="LP", t0=t0)
+    tick = _Progress(progress, "identify: unbounded penalties", unit="LP", t0=t0, into=bars)
     movable, seen = _recession_support(lp, p, K, free_uv, tick, gbar) if neg else (list(range(p)), None)
     lp.solver.drop("support")
     work = len(movable) * lp.rows_nnz(homogeneous=True) if movable else 0
@@ -1394,7 +1413,8 @@ def identify(
     if best_dir is None:
         movable = []
     tick.close()
-    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable), t0=t0)
+    tick = _Progress(progress and bool(movable), "identify: recession directions", total=len(movable), t0=t0,
+                     into=bars)
     signs = (-1.0,) if neg else (-1.0, 1.0)
     # One required improvement for every feature: eps = t_up / 2, t_up = min(1, g*), g* = max gbar@delta over the cone
     # in the unit box (_improving's optimal value, unique whichever vertex the solver returns). For feature a, sign s,
@@ -1444,7 +1464,7 @@ def identify(
     # ---- separating set S_alpha and the separation scales
     lp.solver.drop("sparsest")
     tick.close()
-    tick = _Progress(progress and p > 0, "identify: separation scales", total=p, t0=t0)
+    tick = _Progress(progress and p > 0, "identify: separation scales", total=p, t0=t0, into=bars)
     zero = np.zeros(nv)
     if neg:  # the point of S_alpha with the smallest sum |w_j|: its zeros settle upper ends (below)
         zero[:p] = -1.0
