@@ -298,3 +298,18 @@ def test_report_checks_the_issue_targets_per_task(tmp_path):
     # against ICL 0.5 vs 0.5 and 85 vs 55 (met)
     assert row == ("| halfcheetah | -3.050 vs -3: unsafe side by 0.050 (met) | +0.50 (missed) | 0.85 (missed) | "
                    "0.50 vs 0.50, 85 vs 55 (met) |"), row
+
+
+def test_a_finished_run_being_extended_counts_as_in_progress(tmp_path):
+    """A larger STEPS resumes a finished run: its done.json stays until the new target, while progress.json and the
+    evaluations move on; the report must not mix the old step count with the new evaluations."""
+    runs = tmp_path / "runs"
+    d = runs / "pendulum" / "ppo_lag_true" / "seed0"
+    _fake_seed(d, [[(1.0, 1.0, 1)]], steps=1000)
+    (d / "progress.json").write_text(json.dumps({"steps": 1000, "wall_s": 1.0}))
+    assert seed_metrics(d)["done"]  # finished: progress at the same steps
+    (d / "progress.json").write_text(json.dumps({"steps": 5000, "wall_s": 9.0}))
+    m = seed_metrics(d)
+    assert not m["done"] and m["steps"] == 5000
+    res = build_report(runs, tmp_path / "out", tasks=["pendulum"], figures=False)
+    assert res["in_progress"] == [{"task": "pendulum", "method": "ppo_lag_true", "seed": "seed0", "steps": 5000}]

@@ -71,6 +71,10 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
     evals = _read_jsonl(d / "eval.jsonl")
     curve = _read_jsonl(d / "curve.jsonl")[-100:]
     done = (d / "done.json").is_file()
+    if done and (d / "progress.json").is_file():  # a finished run being extended (a larger STEPS): in progress again
+        prog = json.loads((d / "progress.json").read_text(encoding="utf-8"))
+        fin = json.loads((d / "done.json").read_text(encoding="utf-8"))
+        done = not (prog.get("steps") or 0) > (fin.get("steps") or 0)
     info = json.loads((d / ("done.json" if done else "progress.json")).read_text(encoding="utf-8")) \
         if (d / ("done.json" if done else "progress.json")).is_file() else {}
     out: dict[str, Any] = {"done": done, "steps": info.get("steps"), "wall_s": info.get("wall_s"),
@@ -189,7 +193,8 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
             else:
                 why = "no run directory" if not per else "no finished seed"
                 if m == "icl" and not per and t not in ICL_TASKS:
-                    why = f"not run: the icl method has {' and '.join(sorted(ICL_TASKS))} only"
+                    tasks = sorted(ICL_TASKS)
+                    why = f"not run: the icl method has {', '.join(tasks[:-1])} and {tasks[-1]} only"
                 results["missing"].append({"task": t, "method": m, "why": why})
             rows[m] = agg
         results["tasks"][t] = rows
