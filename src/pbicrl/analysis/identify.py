@@ -1359,7 +1359,7 @@ def _identify(dataset: Dataset, *, nominal_weights: ArrayLike | None, beta: floa
         lp = _GroupLP(X_lp, c, starts, gaps=(mar.matrix + L) / beta)
     from scipy.sparse import csr_matrix
 
-    nv, it, ia = lp.n_var, p + 2 * K, p + 2 * K + 1
+    nv, ia = lp.n_var, p + 2 * K + 1  # columns: w (p), u, v (2K), t, a (p)
     neg = penalty_sign == "negative"
 
     free_uv: list[tuple[float | None, float | None]] = [(None, None)] * (2 * K)  # group bounds u, v
