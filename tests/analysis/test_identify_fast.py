@@ -355,19 +355,25 @@ def test_progress_shows_while_one_lp_takes_long(monkeypatch, capfd):
     assert during[0].count("\r") >= 2, during  # drawn, then redrawn with its clock one second on
 
 
-def test_each_phase_frees_its_lp_models(monkeypatch):
-    """The replay of session 15: with 10,000 dense features every HiGHS model (a copy of 6 million non-zeros) stayed
-    alive to the end and the analysis passed a 4 GB address-space cap; a phase's models are now freed when it ends."""
-    pytest.importorskip("highspy")
-    monkeypatch.setattr(identify_module, "_WARM", True)
+def _instances(monkeypatch, cls) -> list:
+    """Every instance of ``cls`` made while the test runs, in order."""
     made = []
-    init = identify_module._LPSolver.__init__
+    init = cls.__init__
 
     def keep(self, *a, **k):
         init(self, *a, **k)
         made.append(self)
 
-    monkeypatch.setattr(identify_module._LPSolver, "__init__", keep)
+    monkeypatch.setattr(cls, "__init__", keep)
+    return made
+
+
+def test_each_phase_frees_its_lp_models(monkeypatch):
+    """The replay of session 15: with 10,000 dense features every HiGHS model (a copy of 6 million non-zeros) stayed
+    alive to the end and the analysis passed a 4 GB address-space cap; a phase's models are now freed when it ends."""
+    pytest.importorskip("highspy")
+    monkeypatch.setattr(identify_module, "_WARM", True)
+    made = _instances(monkeypatch, identify_module._LPSolver)
     res = identify(_dense(45, 60, seed=3), alpha=0.2, companions=True)
     assert res.separable and res.unbounded.any()
     left = set(made[0]._models)
@@ -378,14 +384,7 @@ def test_an_interrupted_analysis_leaves_no_bar_redrawing(monkeypatch, capfd):
     """Ctrl-C (or any error) in the middle of identify: the bar's redraw thread must stop with it, not print to the
     terminal every second for the rest of the session (a notebook keeps the interrupted frame alive)."""
     monkeypatch.setattr(identify_module, "_PROGRESS_DELAY_S", 0.0)
-    made = []
-    init = identify_module._Progress.__init__
-
-    def keep(self, *a, **k):
-        init(self, *a, **k)
-        made.append(self)
-
-    monkeypatch.setattr(identify_module._Progress, "__init__", keep)
+    made = _instances(monkeypatch, identify_module._Progress)
     slow = identify_module._LPSolver.solve
     calls = []
 
