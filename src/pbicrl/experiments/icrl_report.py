@@ -70,13 +70,14 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
     d = Path(seed_dir)
     evals = _read_jsonl(d / "eval.jsonl")
     curve = _read_jsonl(d / "curve.jsonl")[-100:]
+    def read(name: str) -> dict[str, Any]:
+        return json.loads((d / name).read_text(encoding="utf-8")) if (d / name).is_file() else {}
+
+    fin, prog = read("done.json"), read("progress.json")
     done = (d / "done.json").is_file()
-    if done and (d / "progress.json").is_file():  # a finished run being extended (a larger STEPS): in progress again
-        prog = json.loads((d / "progress.json").read_text(encoding="utf-8"))
-        fin = json.loads((d / "done.json").read_text(encoding="utf-8"))
-        done = not (prog.get("steps") or 0) > (fin.get("steps") or 0)
-    info = json.loads((d / ("done.json" if done else "progress.json")).read_text(encoding="utf-8")) \
-        if (d / ("done.json" if done else "progress.json")).is_file() else {}
+    # a finished run being extended (a larger STEPS) is in progress again: its done.json is older than its evaluations
+    done = done and not (prog.get("steps") or 0) > (fin.get("steps") or 0)
+    info = fin if done else prog
     out: dict[str, Any] = {"done": done, "steps": info.get("steps"), "wall_s": info.get("wall_s"),
                            "violation_rate": None, "feasible_reward": None, "reward": None, "eval_episodes": 0,
                            "train_violation_rate": None, "train_feasible_reward": None}
@@ -203,18 +204,19 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     out.mkdir(parents=True, exist_ok=True)
     fig_note = ""
     drawn: dict[str, str] = {}
+    curves: dict[str, str] = {}
     if figures:
         try:
-            drawn = _figures(results, out / "figures")
+            drawn, curves = _figures(results, out / "figures")
         except ImportError:
             fig_note = 'Figures not drawn: matplotlib is not installed (pip install "pbicrl[plot]").'
-    write_text(out / "report.md", _markdown(results, names, methods, seeds_planned, drawn, fig_note))
+    write_text(out / "report.md", _markdown(results, names, methods, seeds_planned, drawn, curves, fig_note))
     write_json(out / "results.json", results)
     return results
 
 
 def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str], seeds_planned: int,
-              drawn: dict[str, str], fig_note: str) -> str:
+              drawn: dict[str, str], curves: dict[str, str], fig_note: str) -> str:
     from pbicrl.envs.icrl_benchmark import icrl_task
 
     intro = ("Per seed: violation rate (share of episodes with at least one step beyond the wall) and feasible "
@@ -286,15 +288,14 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
             lines.append(f"| {t} | {wall} | {n_found} of {n_all} | x {'<' if spec.side == 'behind' else '>'} "
                          f"{spec.wall:g} |")
     if drawn:
-        lines += [""] + [f"![{t}]({p})" for t, p in drawn.items() if not t.endswith(" curves")]
-        curves = [(t, p) for t, p in drawn.items() if t.endswith(" curves")]
+        lines += [""] + [f"![{t}]({p})" for t, p in drawn.items()]
         if curves:
             lines += ["", "Learning curves: both metrics at every evaluation (10 stochastic episodes, 100 for the "
                       "pendulum) against the training steps; thin lines are seeds (finished or still training), "
                       "the thick line of each method the mean over its seeds at the steps they all reached. The "
                       "`ppo_lag_true` curves are the reference expert's: a row's numbers mean something once its "
                       "curve has flattened.", ""]
-            lines += [f"![{t}]({p})" for t, p in curves]
+            lines += [f"![{t} curves]({p})" for t, p in curves.items()]
     if fig_note:
         lines += ["", fig_note]
     return "\n".join(lines) + "\n"
@@ -344,7 +345,8 @@ def _target_lines(res: dict[str, Any], names: Sequence[str]) -> list[str]:
     return out if any_row else []
 
 
-def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
+def _figures(res: dict[str, Any], fig_dir: Path) -> tuple[dict[str, str], dict[str, str]]:
+    """The scatter figure and the learning curves of every task with a finished seed: (scatter, curves) paths."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -353,7 +355,7 @@ def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
     from pbicrl._atomic import atomic_path
 
     fig_dir.mkdir(parents=True, exist_ok=True)
-    drawn = {}
+    drawn, curves = {}, {}
     for t, rows in res["tasks"].items():
         pts = [(m, a) for m, a in rows.items() if a["seeds_done"]]
         if not pts:
@@ -374,15 +376,19 @@ def _figures(res: dict[str, Any], fig_dir: Path) -> dict[str, str]:
             fig.savefig(tmp, format="png", dpi=120)
         plt.close(fig)
         drawn[t] = f"figures/{name}"
-        curve = _curve_figure(t, rows, fig_dir, plt, atomic_path)
+        curve = _curve_figure(t, rows, fig_dir)
         if curve:
-            drawn[f"{t} curves"] = curve
-    return drawn
+            curves[t] = curve
+    return drawn, curves
 
 
-def _curve_figure(t: str, rows: dict[str, Any], fig_dir: Path, plt: Any, atomic_path: Any) -> str | None:
+def _curve_figure(t: str, rows: dict[str, Any], fig_dir: Path) -> str | None:
     """Feasible reward and violation rate of every evaluation against the steps: one thin line per seed, the
     mean over the seeds on the steps they share as a thick line, one colour per method."""
+    import matplotlib.pyplot as plt  # the backend was set by _figures
+
+    from pbicrl._atomic import atomic_path
+
     series = [(m, [v["eval_curve"] for v in a["per_seed"].values() if v.get("eval_curve", {}).get("steps")])
               for m, a in rows.items()]
     series = [(m, cs) for m, cs in series if cs]

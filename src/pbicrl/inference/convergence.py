@@ -338,13 +338,9 @@ def _stats(x: NDArray[np.float64]) -> tuple[float | None, float | None, float | 
     if x.ndim != 2 or x.shape[1] < 4 or np.all(x == x.flat[0]):
         return None, None, None
     s = _split(x)
-    if np.all(s.var(axis=1) == 0):
-        r = math.inf
-        b = ess_bulk(x)
-    else:  # rhat and ess_bulk share the split chains' rank normalisation
-        z = _rank_normalise(s)
-        r = _rhat_split(s, z)
-        b = _ess(z)
+    z = _rank_normalise(s)  # shared by rhat and ess_bulk
+    r = math.inf if np.all(s.var(axis=1) == 0) else _rhat_split(s, z)
+    b = _ess(z)
     t = ess_tail(x)
     return (None if math.isnan(r) else r, None if math.isnan(b) else b, None if math.isnan(t) else t)
 
