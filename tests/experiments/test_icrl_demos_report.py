@@ -313,3 +313,24 @@ def test_a_finished_run_being_extended_counts_as_in_progress(tmp_path):
     assert not m["done"] and m["steps"] == 5000
     res = build_report(runs, tmp_path / "out", tasks=["pendulum"], figures=False)
     assert res["in_progress"] == [{"task": "pendulum", "method": "ppo_lag_true", "seed": "seed0", "steps": 5000}]
+
+
+def test_switch_hands_over_within_the_tasks_window():
+    """The switch source's hand-over point lies within ``handover_range`` of the wall: 0.01 for the pendulum
+    (whose wall is at -0.015: a U(-1, 1) window would hand over at the start of every episode)."""
+    from pbicrl.envs.icrl_benchmark import ICRLTask, icrl_task
+    from pbicrl.experiments.icrl_demos import _Switch
+
+    spec = icrl_task("pendulum")
+    assert spec.handover_range == 0.01 and icrl_task("halfcheetah").handover_range == 1.0
+    xs = np.linspace(0.02, -0.05, 701)  # the cart moving left past the wall
+    points = []
+    for ep in range(40):
+        sw = _Switch(lambda o: np.zeros(1), lambda o: np.ones(1), spec.wall, True, 3, spec.handover_range)
+        sw.reset(ep)
+        acts = [float(sw(np.array([x, 0.0, 0.0, 0.0]))[0]) for x in xs]
+        points.append(xs[acts.index(1.0)])
+    points = np.asarray(points)
+    assert np.all(np.abs(points - spec.wall) <= 0.01 + 1e-4) and np.ptp(points) > 0.01  # spread over the window
+    with pytest.raises(ValueError, match="handover_range"):
+        ICRLTask("t", "x/T-v0", "m:C", 10, 0.0, "behind", 1, 1, handover_range=0.0)

@@ -16,6 +16,7 @@ import gymnasium as gym  # noqa: E402
 
 from pbicrl.baselines.ppo_lagrangian import PPOLagConfig, lagrange_adam_update, lagrange_update  # noqa: E402
 from pbicrl.experiments.icrl_benchmark import (  # noqa: E402
+    BENCHMARK_NU0,
     EpisodeRecorder,
     episode_metrics,
     expert_config,
@@ -80,6 +81,11 @@ def test_expert_config_follows_the_note():
     assert hc.lagrange_optimizer == "adam" and hc.scale_cost and hc.episode_cost == "step"
     ppo = expert_config("halfcheetah", "ppo")
     assert ppo.lagrange_init == ppo.lagrange_min == 0.0
+    # nu_0 departs from the benchmark's for the pendulum and the swimmer only (their experts never met the wall)
+    nu0 = {t: expert_config(t, "ppo_lag_true").lagrange_min for t in BENCHMARK_NU0}
+    assert {t for t in nu0 if nu0[t] != BENCHMARK_NU0[t]} == {"pendulum", "swimmer"}
+    assert (nu0["pendulum"], nu0["swimmer"]) == (10.0, 30.0)
+    assert expert_config("pendulum", "ppo").lagrange_init == 0.0  # the unconstrained runs are unchanged
     with pytest.raises(ValueError, match="method: unknown"):
         expert_config("halfcheetah", "sac")
 

@@ -108,6 +108,10 @@ class ICRLTask:
         Names of ``info["features"]``, the reward's terms.
     nominal_weights : tuple of float
         :math:`w_n` with :math:`r = w_n^\\top \\phi` (same length as ``feature_names``).
+    handover_range : float
+        Half-width :math:`s` of the window :math:`u \\sim U(-s, s)` in which the ranked demonstrations' ``switch``
+        source hands over to the expert near the wall (:mod:`pbicrl.experiments.icrl_demos`): 1 (metres) for the
+        locomotion tasks, 0.01 for the pendulum, whose cart moves on the scale of its wall (-0.015).
     """
 
     name: str
@@ -120,8 +124,11 @@ class ICRLTask:
     act_dim: int
     feature_names: tuple[str, ...] = ()
     nominal_weights: tuple[float, ...] = ()
+    handover_range: float = 1.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.handover_range) and self.handover_range > 0):
+            raise ValueError(f"ICRLTask.handover_range: must be a finite number > 0, got {self.handover_range!r}")
         if len(self.feature_names) != len(self.nominal_weights):
             raise ValueError(f"ICRLTask.nominal_weights: {len(self.nominal_weights)} weights for "
                              f"{len(self.feature_names)} features")
@@ -144,7 +151,7 @@ ICRL_TASKS: dict[str, ICRLTask] = {
     "ant": ICRLTask("ant", "pbicrl/BlockedAnt-v0", f"{_MOD}:BlockedAntEnv", 500, -3.0, "behind", 29, 8,
                     ("distance", "healthy", "action_sq_norm"), (1.0, 1.0, -0.5)),
     "pendulum": ICRLTask("pendulum", "pbicrl/BiasedPendulum-v0", f"{_MOD}:BiasedPendulumEnv", 100, -0.015,
-                         "behind", 4, 1, ("bias_reward",), (1.0,)),
+                         "behind", 4, 1, ("bias_reward",), (1.0,), handover_range=0.01),
     "walker": ICRLTask("walker", "pbicrl/BlockedWalker-v0", f"{_MOD}:BlockedWalkerEnv", 500, -3.0, "behind", 18, 6,
                        ("speed", "alive", "action_sq_norm"), (1.0, 1.0, -1e-3)),
     "swimmer": ICRLTask("swimmer", "pbicrl/BlockedSwimmer-v0", f"{_MOD}:BlockedSwimmerEnv", 500, 0.5, "infront",

@@ -25,8 +25,8 @@ The policies (``sources``), taken in turn, one episode each:
     the unconstrained PPO policy (``ppo``), stochastic (draws from its Gaussian);
 ``switch``
     a ``handover`` policy (its mean; default the unconstrained checkpoint) until the state :math:`x` first comes
-    within :math:`u` of the wall (:math:`x < \text{wall} + u` for a wall behind, :math:`u \sim U(-1, 1)` per
-    episode), then the expert (its mean): it reaches the wall and is turned back by the expert, sometimes in
+    within :math:`u` of the wall (:math:`x < \text{wall} + u` for a wall behind, :math:`u \sim U(-s, s)` per
+    episode, :math:`s` the task's ``handover_range``: 1 m, 0.01 for the pendulum), then the expert (its mean): it reaches the wall and is turned back by the expert, sometimes in
     time, sometimes after a brief crossing, sometimes not at all (the expert then runs on through). On Blocked
     Half-Cheetah the final unconstrained policy runs backwards so fast (and in a gait the expert never saw)
     that the expert almost never turns it back (measured: none of 30 handovers at x = -0.5 to -2.5); an early
@@ -175,15 +175,18 @@ class _Noisy:
 
 
 class _Switch:
-    """``first`` until the state first comes within ``u ~ U(-1, 1)`` of the wall, then ``second``."""
+    """``first`` until the state first comes within ``u ~ U(-s, s)`` of the wall (``s`` = ``scale``), then
+    ``second``."""
 
     def __init__(self, first: Callable[[Any], Any], second: Callable[[Any], Any], wall: float, behind: bool,
-                 seed: int) -> None:
+                 seed: int, scale: float = 1.0) -> None:
         self.first, self.second, self.wall, self.behind, self.seed = first, second, float(wall), behind, int(seed)
+        self.scale = float(scale)
         self.u, self.on = 0.0, False
 
     def reset(self, seed: int) -> None:
-        self.u = float(np.random.default_rng([self.seed, 2, int(seed)]).uniform(-1.0, 1.0))
+        # the draw is U(-1, 1) scaled, so the tasks with scale 1 keep their shipped demonstrations bit for bit
+        self.u = self.scale * float(np.random.default_rng([self.seed, 2, int(seed)]).uniform(-1.0, 1.0))
         self.on = False
 
     def __call__(self, obs: Any) -> NDArray[np.float64]:
@@ -312,7 +315,7 @@ def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrain
         "expert": e_mean,
         "expert_noise": _Noisy(e_mean, noise_sd, seed),
         "unconstrained": _Stochastic(CheckpointPolicy(unconstrained, deterministic=False), seed),
-        "switch": _Switch(h_mean, e_mean, spec.wall, behind, seed),
+        "switch": _Switch(h_mean, e_mean, spec.wall, behind, seed, spec.handover_range),
     }
     for name, pol in (("expert", e_mean), ("unconstrained", u_mean), ("handover", h_mean)):
         if pol.obs_dim != spec.obs_dim:
@@ -391,8 +394,9 @@ def generate_ranked_demos(task: str, expert: str | os.PathLike[str], unconstrain
             "expert": "ppo_lag_true checkpoint, deterministic (mean action)",
             "expert_noise": f"ppo_lag_true mean action + N(0, {noise_sd:g}^2) noise",
             "unconstrained": "ppo checkpoint, stochastic (draws from its Gaussian)",
-            "switch": "handover checkpoint's mean action until the state first comes within u ~ U(-1, 1) of "
-                      "the wall, then the ppo_lag_true mean action",
+            "switch": "handover checkpoint's mean action until the state first comes within u ~ "
+                      f"U(-{spec.handover_range:g}, {spec.handover_range:g}) of the wall, then the ppo_lag_true "
+                      "mean action",
             "used": srcs},
         "policies": lineage, "quantize": bool(quantize), "keep_actions": bool(keep_actions),
         "episodes_generated": len(episodes),
