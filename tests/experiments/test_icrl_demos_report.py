@@ -259,10 +259,15 @@ def test_shipped_halfcheetah_demos_match_their_record_and_rules():
 
 @pytest.mark.parametrize("name, env_id", [("icrl_halfcheetah", "pbicrl/BlockedHalfCheetah-v0"),
                                           ("icrl_ant", "pbicrl/BlockedAnt-v0"),
-                                          ("icrl_walker", "pbicrl/BlockedWalker-v0")])
+                                          ("icrl_walker", "pbicrl/BlockedWalker-v0"),
+                                          ("icrl_pendulum", "pbicrl/BiasedPendulum-v0"),
+                                          ("icrl_swimmer", "pbicrl/BlockedSwimmer-v0")])
 def test_every_shipped_wall_dataset_matches_its_record_and_rules(name, env_id):
     """Each shipped ICRL demonstration set is the file its record describes, 100 per group, each episode labelled by
-    the number of its steps beyond the wall (x < -3 after the step), never by the policy that made it."""
+    the number of its steps beyond the task's wall (x < -3 after the step; the pendulum's x < -0.015, the swimmer's
+    x > 0.5), never by the policy that made it."""
+    from pbicrl.envs.icrl_benchmark import icrl_task
+
     import hashlib
 
     import pbicrl
@@ -273,10 +278,12 @@ def test_every_shipped_wall_dataset_matches_its_record_and_rules(name, env_id):
     assert hashlib.sha256(path.read_bytes()).hexdigest() == rec["file_sha256"]
     ds = pbicrl.load_dataset(name)
     assert ds.env_id == env_id and rec["env_id"] == env_id
+    spec = icrl_task(env_id)
+    assert rec["wall"]["threshold"] == spec.wall and rec["wall"]["side"] == spec.side
     assert list(np.bincount(ds.group)[1:]) == [100, 100, 100]
     rules = DemoRules(rec["rules"]["brief_max_steps"], rec["rules"]["through_min_steps"])
     off, x = ds.offsets, ds.states[:, 0]
-    n_v = np.array([np.sum(x[off[i]:off[i + 1]] < -3.0) for i in range(ds.n_trajectories)])
+    n_v = np.array([np.sum(spec.cost(x[off[i]:off[i + 1]])) for i in range(ds.n_trajectories)])
     assert [classify_episode(n, rules) for n in n_v] == list(ds.group)
     assert n_v[ds.group == 1].max() == 0 and n_v[ds.group == 2].min() >= 1
     assert n_v[ds.group == 3].min() >= rec["rules"]["through_min_steps"]
