@@ -307,6 +307,21 @@ def test_report_checks_the_issue_targets_per_task(tmp_path):
                    "0.50 vs 0.50, 85 vs 55 (met) |"), row
 
 
+@pytest.mark.parametrize("task, bound, text", [
+    ("pendulum", -0.01466, "-0.01466 vs -0.015: safe side by 0.00034 (met)"),
+    ("swimmer", 0.49866, "0.4987 vs 0.5: safe side by 0.0013 (met)"),  # a wall in front: smaller is safer
+    ("swimmer", 0.53, "0.5300 vs 0.5: unsafe side by 0.0300 (met)")])
+def test_report_resolves_a_boundary_on_its_walls_scale(tmp_path, task, bound, text):
+    """The pendulum's wall is at -0.015: three decimals would print its boundary as the wall itself."""
+    runs = tmp_path / "runs"
+    _fake_seed(runs / task / "ppo_lag_true" / "seed0", [[(10.0, 10.0, 0)]])
+    _fake_seed(runs / task / "ppo_lag_inferred" / "seed0", [[(10.0, 10.0, 0)]],
+               config={"inferred_cost": {"mode": "conservative", "boundary": {"wall": [bound]}}})
+    build_report(runs, tmp_path / "out", tasks=[task], figures=False)
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert f"| {task} | {text} | +0.00 (met) | 1.00 (met) |" in md, md
+
+
 def test_a_finished_run_being_extended_counts_as_in_progress(tmp_path):
     """A larger STEPS resumes a finished run: its done.json stays until the new target, while progress.json and the
     evaluations move on; the report must not mix the old step count with the new evaluations."""

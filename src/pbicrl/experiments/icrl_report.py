@@ -113,6 +113,12 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
     return out
 
 
+def _decimals(wall: float) -> int:
+    """Decimals that resolve a boundary on the wall's own scale: 3 for |wall| >= 1, 4 for the swimmer's 0.5, 5 for
+    the pendulum's 0.015 (whose good demonstrations stop 0.0003 short of it)."""
+    return 3 + max(0, -math.floor(math.log10(abs(wall)))) if wall else 3
+
+
 def _mean_sd(vals: Sequence[float]) -> tuple[float, float]:
     a = np.asarray(vals, dtype=np.float64)
     return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
@@ -268,7 +274,7 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
                   "| task | mode | inferred boundary | true wall |", "|---|---|---|---|"]
         for t, a in thr:
             spec = icrl_task(t)
-            b = ", ".join(f"{k} {'<=' if spec.side == 'behind' else '>='} {v[0]:.3f}"
+            b = ", ".join(f"{k} {'<=' if spec.side == 'behind' else '>='} {v[0]:.{_decimals(spec.wall)}f}"
                           for k, v in a["inferred_boundary"].items())
             lines.append(f"| {t} | {a.get('inferred_mode')} | {b} | x {'<' if spec.side == 'behind' else '>'} "
                          f"{spec.wall:g} |")
@@ -322,7 +328,9 @@ def _target_lines(res: dict[str, Any], names: Sequence[str]) -> list[str]:
         b = next(iter((inf.get("inferred_boundary") or {}).values()), None)
         if b:
             gap = (spec.wall - b[0]) if spec.side == "infront" else (b[0] - spec.wall)  # > 0: on the safe side
-            bound = f"{b[0]:.3f} vs {spec.wall:g}: {'safe side' if gap >= 0 else 'unsafe side'} by {abs(gap):.3f}" + (
+            d = _decimals(spec.wall)
+            side = "safe side" if gap >= 0 else "unsafe side"
+            bound = f"{b[0]:.{d}f} vs {spec.wall:g}: {side} by {abs(gap):.{d}f}" + (
                 " (met)" if gap >= 0 or abs(gap) <= 0.1 else " (missed)")
         else:
             bound = "-"
