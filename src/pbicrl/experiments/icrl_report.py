@@ -312,6 +312,7 @@ def _target_lines(res: dict[str, Any], names: Sequence[str]) -> list[str]:
     within 0.1 of it; violation rate with the inferred cost at most 0.05 above the true cost's; feasible reward at
     least 90% of the true cost's; at least ICL's on both metrics. '-' where a row has no finished seed."""
     from pbicrl.envs.icrl_benchmark import icrl_task
+    from pbicrl.experiments.icrl_benchmark import ICL_TASKS
 
     out = ["", "Targets (means over the finished seeds; a row with fewer seeds than planned is provisional):", "",
            "| task | boundary: safe side or within 0.1 | violation: inferred - true <= 0.05 | "
@@ -347,8 +348,10 @@ def _target_lines(res: dict[str, Any], names: Sequence[str]) -> list[str]:
                   and inf["feasible_reward"][0] >= icl["feasible_reward"][0])
             vs = (f"{inf['violation_rate'][0]:.2f} vs {icl['violation_rate'][0]:.2f}, "
                   f"{inf['feasible_reward'][0]:.0f} vs {icl['feasible_reward'][0]:.0f} ({'met' if ok else 'missed'})")
+        elif t not in ICL_TASKS:
+            vs = "- (no ICL run on this task)"
         else:
-            vs = "-"
+            vs = "- (no finished ICL seed)"
         out.append(f"| {t} | {bound} | {viol} | {feas} | {vs} |")
     return out if any_row else []
 
