@@ -4,5 +4,8 @@
 # (a larger STEPS extends a finished run); rerun this script to go on. Start it niced and detached, e.g.
 #   setsid nohup nice -n 19 bash training/icrl/queue/chain11.sh >> chain11.out 2>&1 < /dev/null &
 . "$(dirname "$0")/_env.sh"
-$R swimmer:ppo_lag_true:0:5000000 >> $OUT/train.log 2>&1
-$R swimmer:ppo:0:3000000 >> $OUT/train.log 2>&1
+# $R swimmer:ppo_lag_true:0:5000000 >> $OUT/train.log 2>&1   # done; see below
+# $R swimmer:ppo:0:3000000 >> $OUT/train.log 2>&1   # done; see below
+# Session 16: done, and retired. Its ppo_lag_true run (the benchmark's nu_0) was moved to
+# swimmer/ppo_lag_true_benchmark_nu0/seed0; swimmer/ppo_lag_true/seed0 is now the nu_0 = 30 run of chain14.sh,
+# which the first line would extend by mistake: both lines are commented out.
