@@ -356,3 +356,17 @@ def test_switch_hands_over_within_the_tasks_window():
     assert np.all(np.abs(points - spec.wall) <= 0.01 + 1e-4) and np.ptp(points) > 0.01  # spread over the window
     with pytest.raises(ValueError, match="handover_range"):
         ICRLTask("t", "x/T-v0", "m:C", 10, 0.0, "behind", 1, 1, handover_range=0.0)
+
+
+def test_report_reads_a_compressed_curve(tmp_path):
+    """The committed snapshot gzips long curves (curve.jsonl.gz): the report reads them as the plain file."""
+    import gzip
+
+    d = tmp_path / "runs" / "pendulum" / "ppo_lag_true" / "seed0"
+    _fake_seed(d, [[(10.0, 10.0, 0)]], curve=[(10.0, 10.0, 0), (12.0, 12.0, 1)])
+    plain = seed_metrics(d)
+    curve = d / "curve.jsonl"
+    with gzip.open(d / "curve.jsonl.gz", "wt", encoding="utf-8") as fh:
+        fh.write(curve.read_text(encoding="utf-8"))
+    curve.unlink()
+    assert seed_metrics(d) == plain and plain["train_violation_rate"] is not None
