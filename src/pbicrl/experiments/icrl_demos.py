@@ -26,8 +26,9 @@ The policies (``sources``), taken in turn, one episode each:
 ``switch``
     a ``handover`` policy (its mean; default the unconstrained checkpoint) until the state :math:`x` first comes
     within :math:`u` of the wall (:math:`x < \text{wall} + u` for a wall behind, :math:`u \sim U(-s, s)` per
-    episode, :math:`s` the task's ``handover_range``: 1 m, 0.01 for the pendulum), then the expert (its mean): it reaches the wall and is turned back by the expert, sometimes in
-    time, sometimes after a brief crossing, sometimes not at all (the expert then runs on through). On Blocked
+    episode, :math:`s` the task's ``handover_range``: 1 m, 0.01 for the pendulum), then the expert (its mean): it
+    reaches the wall and is turned back by the expert, sometimes in time, sometimes after a brief crossing,
+    sometimes not at all (the expert then runs on through). On Blocked
     Half-Cheetah the final unconstrained policy runs backwards so fast (and in a gait the expert never saw)
     that the expert almost never turns it back (measured: none of 30 handovers at x = -0.5 to -2.5); an early
     checkpoint of the same run (its ``best.pt``, 102,400 steps) is slower and is turned back after a brief
