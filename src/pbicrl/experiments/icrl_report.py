@@ -80,13 +80,13 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
     d = Path(seed_dir)
     evals = _read_jsonl(d / "eval.jsonl")
     curve = _read_jsonl(d / "curve.jsonl")[-100:]
+
     def read(name: str) -> dict[str, Any]:
         return json.loads((d / name).read_text(encoding="utf-8")) if (d / name).is_file() else {}
 
     fin, prog = read("done.json"), read("progress.json")
-    done = (d / "done.json").is_file()
     # a finished run being extended (a larger STEPS) is in progress again: its done.json is older than its evaluations
-    done = done and not (prog.get("steps") or 0) > (fin.get("steps") or 0)
+    done = bool(fin) and not (prog.get("steps") or 0) > (fin.get("steps") or 0)
     info = fin if done else prog
     out: dict[str, Any] = {"done": done, "steps": info.get("steps"), "wall_s": info.get("wall_s"),
                            "violation_rate": None, "feasible_reward": None, "reward": None, "eval_episodes": 0,
