@@ -17,7 +17,7 @@ from pbicrl.experiments.icrl_demos import (  # noqa: E402
     classify_episode,
     generate_ranked_demos,
 )
-from pbicrl.experiments.icrl_report import build_report, seed_metrics  # noqa: E402
+from pbicrl.experiments.icrl_report import build_report, curve_series, seed_metrics  # noqa: E402
 
 SMALL = dict(n_envs=2, n_steps=64, minibatch_size=64, n_epochs=1)
 
@@ -197,6 +197,25 @@ def test_report_on_synthetic_runs(tmp_path):
     assert res["tasks"]["halfcheetah"]["ppo_lag_inferred"]["per_seed"]["seed0"]["eval_curve"]["steps"] == [500]
     assert (tmp_path / "out" / "figures" / "icrl_halfcheetah_curves.png").stat().st_size > 1000
     assert "![halfcheetah curves](figures/icrl_halfcheetah_curves.png)" in md and "Learning curves" in md
+
+
+def test_curve_mean_is_over_finished_seeds_only():
+    """A seed still training neither cuts the thick mean short nor enters it; the label counts both kinds."""
+    def seed(steps, feas, done):
+        return {"done": done, "eval_curve": {"steps": steps, "feasible_reward": feas,
+                                             "violation_rate": [0.0] * len(steps)}}
+    rows = {"ppo_lag_true": {"per_seed": {"seed0": seed([1, 2, 3], [10.0, 20.0, 30.0], True),
+                                          "seed1": seed([1, 2, 3], [30.0, 40.0, 50.0], True),
+                                          "seed2": seed([1], [1000.0], False)}},
+            "icl": {"per_seed": {"seed0": seed([1, 2], [5.0, 6.0], False)}},
+            "ppo": {"per_seed": {"seed0": {"done": False}}}}  # nothing evaluated yet: not drawn
+    by = {s["method"]: s for s in curve_series(rows)}
+    assert set(by) == {"ppo_lag_true", "icl"}
+    assert by["ppo_lag_true"]["mean"] == {"steps": [1, 2, 3], "feasible_reward": [20.0, 30.0, 40.0],
+                                          "violation_rate": [0.0, 0.0, 0.0]}
+    assert len(by["ppo_lag_true"]["in_progress"]) == 1
+    assert by["ppo_lag_true"]["label"] == "PPO-Lagrangian, true cost (2 seeds, 1 in progress)"
+    assert by["icl"]["mean"] is None and by["icl"]["label"] == "ICL baseline (no finished seed, 1 in progress)"
 
 
 def test_report_names_a_started_run_without_progress(tmp_path):

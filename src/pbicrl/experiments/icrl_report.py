@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["REPORT_METHODS", "build_report", "seed_metrics"]
+__all__ = ["REPORT_METHODS", "build_report", "curve_series", "seed_metrics"]
 
 REPORT_METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
 _LABELS = {"ppo": "PPO (no constraint)", "ppo_lag_true": "PPO-Lagrangian, true cost",
@@ -403,34 +403,76 @@ def _figures(res: dict[str, Any], fig_dir: Path) -> tuple[dict[str, str], dict[s
     return drawn, curves
 
 
+def curve_series(rows: dict[str, Any]) -> list[dict[str, Any]]:
+    """What the learning-curve figure of one task draws, per method with an evaluation.
+
+    The thick mean is over the *finished* seeds only, on the steps they share: a run still training would cut
+    the mean short at its own step count and disagree with the table, which counts finished seeds. Runs in
+    progress are drawn on their own (dashed) and named in the label.
+
+    Parameters
+    ----------
+    rows : dict
+        ``{method: {"per_seed": {seed: seed_metrics(...)}}}``, as in ``build_report``'s results.
+
+    Returns
+    -------
+    list of dict
+        ``method``, ``finished`` and ``in_progress`` (lists of ``eval_curve`` dicts), ``mean`` (``{"steps",
+        "feasible_reward", "violation_rate"}`` over the finished seeds, None without one) and ``label``.
+    """
+    out = []
+    for m, a in rows.items():
+        seeds = [v for v in a["per_seed"].values() if v.get("eval_curve", {}).get("steps")]
+        fin = [v["eval_curve"] for v in seeds if v.get("done")]
+        prog = [v["eval_curve"] for v in seeds if not v.get("done")]
+        if not fin and not prog:
+            continue
+        mean = None
+        if fin:
+            common = sorted(set.intersection(*(set(c["steps"]) for c in fin)))
+            if common:
+                mean = {"steps": common, **{k: [float(np.mean([c[k][c["steps"].index(st)] for c in fin]))
+                                               for st in common]
+                                            for k in ("feasible_reward", "violation_rate")}}
+        parts = [f"{len(fin)} seed{'s' if len(fin) != 1 else ''}"] if fin else ["no finished seed"]
+        if prog:
+            parts.append(f"{len(prog)} in progress")
+        out.append({"method": m, "finished": fin, "in_progress": prog, "mean": mean,
+                    "label": f"{_LABELS[m]} ({', '.join(parts)})"})
+    return out
+
+
 def _curve_figure(t: str, rows: dict[str, Any], fig_dir: Path) -> str | None:
-    """Feasible reward and violation rate of every evaluation against the steps: one thin line per seed, the
-    mean over the seeds on the steps they share as a thick line, one colour per method."""
+    """Feasible reward and violation rate of every evaluation against the steps: one thin line per seed (dashed
+    while it trains), the mean over the finished seeds as a thick line, one colour per method."""
     import matplotlib.pyplot as plt  # the backend was set by _figures
 
     from pbicrl._atomic import atomic_path
 
-    series = [(m, [v["eval_curve"] for v in a["per_seed"].values() if v.get("eval_curve", {}).get("steps")])
-              for m, a in rows.items()]
-    series = [(m, cs) for m, cs in series if cs]
+    series = curve_series(rows)
     if not series:
         return None
     fig, axes = plt.subplots(2, 1, figsize=(6, 5.2), sharex=True)
-    for m, cs in series:
-        colour = _COLOURS[m]
+    for s in series:
+        colour = _COLOURS[s["method"]]
         for k, key in enumerate(("feasible_reward", "violation_rate")):
-            for c in cs:
+            for c in s["finished"]:
                 axes[k].plot(np.asarray(c["steps"]) / 1e6, c[key], color=colour, lw=0.6, alpha=0.45)
-            common = sorted(set.intersection(*(set(c["steps"]) for c in cs)))
-            if common:
-                mean = [np.mean([c[key][c["steps"].index(st)] for c in cs]) for st in common]
-                axes[k].plot(np.asarray(common) / 1e6, mean, color=colour, lw=2.0,
-                             label=f"{_LABELS[m]} ({len(cs)} seed{'s' if len(cs) > 1 else ''})" if k == 0 else None)
+            for c in s["in_progress"]:
+                axes[k].plot(np.asarray(c["steps"]) / 1e6, c[key], color=colour, lw=0.8, alpha=0.6, ls="--")
+            label = s["label"] if k == 0 else None
+            if s["mean"] is not None:
+                axes[k].plot(np.asarray(s["mean"]["steps"]) / 1e6, s["mean"][key], color=colour, lw=2.0,
+                             label=label)
+            elif label:  # nothing finished: the legend still names the method
+                axes[k].plot([], [], color=colour, lw=0.8, ls="--", label=label)
     axes[0].set_ylabel("feasible cumulative reward")
     axes[1].set_ylabel("constraint violation rate")
     axes[1].set_ylim(-0.05, 1.05)
     axes[1].set_xlabel("training steps (millions)")
-    axes[0].set_title(f"{t}: evaluations during training (thin: seeds, thick: mean)")
+    axes[0].set_title(f"{t}: evaluations (thin: seeds, dashed: training, thick: mean of finished)",
+                      fontsize=9)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     name = f"icrl_{t}_curves.png"
