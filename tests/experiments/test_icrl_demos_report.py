@@ -218,6 +218,16 @@ def test_curve_mean_is_over_finished_seeds_only():
     assert by["icl"]["mean"] is None and by["icl"]["label"] == "ICL baseline (no finished seed, 1 in progress)"
 
 
+def test_report_names_the_runs_path_as_given(tmp_path, monkeypatch):
+    """A committed report says where to rerun it (the relative path), not the machine's absolute path."""
+    monkeypatch.chdir(tmp_path)
+    _fake_seed(tmp_path / "training" / "icrl" / "halfcheetah" / "ppo" / "seed0", [[(1.0, 1.0, 0)]])
+    res = build_report("training/icrl", "out", tasks=["halfcheetah"], seeds_planned=1, figures=False)
+    assert res["runs"] == "training/icrl"
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "from the training runs in `training/icrl`." in md and str(tmp_path) not in md
+
+
 def test_report_names_a_started_run_without_progress(tmp_path):
     """A run directory with nothing recorded yet is listed as started, not as 'at None steps'."""
     runs = tmp_path / "runs"

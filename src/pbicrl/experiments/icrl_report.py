@@ -179,7 +179,8 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         raise ValueError(f"methods: unknown {unknown}; expected some of {list(REPORT_METHODS)}")
     if int(seeds_planned) != seeds_planned or seeds_planned < 1:
         raise ValueError(f"seeds_planned: must be an integer >= 1, got {seeds_planned!r}")
-    results: dict[str, Any] = {"runs": str(root.resolve()), "tasks": {}, "missing": [], "in_progress": [],
+    # as given: a committed report names the path a reader can rerun it on, not this machine's absolute one
+    results: dict[str, Any] = {"runs": str(runs), "tasks": {}, "missing": [], "in_progress": [],
                                "metric_source": "last evaluation in eval.jsonl: stochastic-policy episodes, true cost"}
     for t in names:
         rows: dict[str, Any] = {}
