@@ -308,8 +308,9 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
         lines += [""] + [f"![{t}]({p})" for t, p in drawn.items()]
         if curves:
             lines += ["", "Learning curves: both metrics at every evaluation (10 stochastic episodes, 100 for the "
-                      "pendulum) against the training steps; thin lines are seeds (finished or still training), "
-                      "the thick line of each method the mean over its seeds at the steps they all reached. The "
+                      "pendulum) against the training steps; thin lines are seeds (dashed: still training), "
+                      "the thick line of each method the mean over its finished seeds at the steps they all reached. "
+                      "The "
                       "`ppo_lag_true` curves are the reference expert's: a row's numbers mean something once its "
                       "curve has flattened.", ""]
             lines += [f"![{t} curves]({p})" for t, p in curves.items()]
