@@ -264,6 +264,38 @@ def test_cli_benchmark_icrl(tmp_path, capsys):
     assert "--inferred-run" in capsys.readouterr().err
 
 
+def test_run_status_tells_done_training_stopped_and_started(tmp_path, capsys):
+    import os
+    import subprocess
+    import sys
+
+    from pbicrl.cli.app import main
+    from pbicrl.experiments.icrl_report import run_status
+
+    runs = tmp_path / "runs"
+    _fake_seed(runs / "ant" / "ppo" / "seed0", [[(5.0, 5.0, 1)]], steps=3000, wall_s=60.0)
+    for k in (1, 2):  # seed1 trains (a live process holds its lock), seed2 was stopped (its process is gone)
+        d = runs / "ant" / "ppo" / f"seed{k}"
+        _fake_seed(d, [[(1.0, 1.0, 0)]], done=False, steps=1000, wall_s=100.0)
+        (d / "progress.json").write_text(json.dumps({"steps": 1000, "wall_s": 100.0, "total_steps_target": 4000}))
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (runs / "ant" / "ppo" / "seed1" / "lock").write_text(str(os.getpid()))
+    (runs / "ant" / "ppo" / "seed2" / "lock").write_text(str(dead.pid))
+    (runs / "ant" / "icl" / "seed0").mkdir(parents=True)
+    rows = {r["run"]: r for r in run_status(runs)}
+    assert {k: r["state"] for k, r in rows.items()} == {
+        "ant/ppo/seed0": "done", "ant/ppo/seed1": "training", "ant/ppo/seed2": "stopped", "ant/icl/seed0": "started"}
+    assert rows["ant/ppo/seed1"]["eta_s"] == pytest.approx(300.0)  # 3000 steps left at 0.1 s per step
+    assert rows["ant/ppo/seed2"]["eta_s"] is None and rows["ant/ppo/seed0"]["target"] == 3000
+    assert rows["ant/ppo/seed0"]["violation_rate"] == 1.0 and rows["ant/icl/seed0"]["feasible_reward"] is None
+    assert main(["benchmark", "icrl", "status", "--runs", str(runs)]) == 0
+    out = capsys.readouterr().out
+    assert "4 runs: 1 done, 1 training, 1 stopped" in out and "0.08" in out  # 300 s left = 0.08 h
+    assert main(["benchmark", "icrl", "status", "--runs", str(tmp_path / "none")]) == 2
+    assert "runs: " in capsys.readouterr().err
+
+
 def test_shipped_halfcheetah_demos_match_their_record_and_rules():
     import hashlib
 

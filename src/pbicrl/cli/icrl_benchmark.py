@@ -1,6 +1,6 @@
 """The ICRL benchmark's command line.
 
-``pbicrl benchmark icrl train|demos|report`` (mounted on ``pbicrl``), and ``python -m pbicrl.cli.icrl_benchmark``
+``pbicrl benchmark icrl train|demos|report|status`` (mounted on ``pbicrl``), and ``python -m pbicrl.cli.icrl_benchmark``
 (the same as ``pbicrl benchmark icrl train``, kept for the running trainings):
 
 ``train --out DIR --run TASK:METHOD:SEED:STEPS [--run ...] [--inferred-run RUN] [--cost-mode MODE] [--icl-budget B]``
@@ -9,7 +9,10 @@
 ``demos --task TASK --expert CKPT --unconstrained CKPT --out FILE.npz``
     ranked demonstrations (:func:`pbicrl.experiments.icrl_demos.generate_ranked_demos`);
 ``report --runs DIR --out DIR``
-    the benchmark's table and figures (:func:`pbicrl.experiments.icrl_report.build_report`).
+    the benchmark's table and figures (:func:`pbicrl.experiments.icrl_report.build_report`);
+``status --runs DIR``
+    every run's state: done, training (with its time left), stopped (rerun to resume)
+    (:func:`pbicrl.experiments.icrl_report.run_status`).
 """
 
 from __future__ import annotations
@@ -107,8 +110,39 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _hours(s: float | None) -> str:
+    return "-" if s is None else f"{s / 3600:.2f}"
+
+
+def _status(args: argparse.Namespace) -> int:
+    import json
+
+    from pbicrl.experiments.icrl_report import run_status
+
+    rows = run_status(args.runs)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    if not rows:
+        print(f"no runs under {args.runs}")
+        return 0
+    w = max(len(r["run"]) for r in rows)
+    print(f"{'run':<{w}}  {'state':<8}  {'steps':>10}  {'target':>10}  {'violation':>9}  {'feasible':>9}  "
+          f"{'wall h':>6}  {'left h':>6}")
+    for r in rows:
+        viol = "-" if r["violation_rate"] is None else f"{r['violation_rate']:.2f}"
+        feas = "-" if r["feasible_reward"] is None else f"{r['feasible_reward']:.0f}"
+        print(f"{r['run']:<{w}}  {r['state']:<8}  {r['steps'] or 0:>10,}  {r['target'] or 0:>10,}  {viol:>9}  "
+              f"{feas:>9}  {_hours(r['wall_s']):>6}  {_hours(r['eta_s']):>6}")
+    n = {k: sum(r["state"] == k for r in rows) for k in ("done", "training", "stopped", "started")}
+    print(f"{len(rows)} runs: {n['done']} done, {n['training']} training, {n['stopped']} stopped (rerun its train "
+          f"command to resume), {n['started']} started; violation and feasible: the last evaluation; left: at the "
+          "run's average pace so far")
+    return 0
+
+
 def add_subcommands(sub: Any) -> None:
-    """Register ``pbicrl benchmark icrl {train,demos,report}`` (imports nothing optional until it runs)."""
+    """Register ``pbicrl benchmark icrl {train,demos,report,status}`` (imports nothing optional until it runs)."""
     from pbicrl.cli.argtypes import nonneg_int, positive_int
 
     p = sub.add_parser("benchmark", help="benchmarks: 'icrl' (the ICRL benchmark of Liu et al., ICLR 2023)",
@@ -153,6 +187,12 @@ def add_subcommands(sub: Any) -> None:
     r.add_argument("--seeds", type=positive_int, default=5, help="seeds planned per row (default 5)")
     r.add_argument("--no-figures", action="store_true", help="no figures")
     r.set_defaults(func=_report)
+    st = acts.add_parser("status", help="every run's state: done, training (time left), stopped",
+                         description="Where every run under --runs stands: done, training (its lock names a live "
+                                     "process; the time left at its pace so far), stopped (rerun to resume).")
+    st.add_argument("--runs", required=True, type=Path, help="root of the training runs (train --out)")
+    st.add_argument("--json", action="store_true", help="print the rows as JSON")
+    st.set_defaults(func=_status)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["REPORT_METHODS", "build_report", "curve_series", "seed_metrics"]
+__all__ = ["REPORT_METHODS", "build_report", "curve_series", "run_status", "seed_metrics"]
 
 REPORT_METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
 _LABELS = {"ppo": "PPO (no constraint)", "ppo_lag_true": "PPO-Lagrangian, true cost",
@@ -120,6 +120,53 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
         if "inferred_cost" in c:
             out["inferred_cost"] = c["inferred_cost"]
             out["inferred_run"] = c.get("inferred_run")
+    return out
+
+
+def run_status(runs: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """Where every run under ``runs`` stands (``<runs>/<task>/<method>/seed<k>``), for a benchmark that trains
+    for hours: what is done, what trains now, what was stopped and would resume.
+
+    Returns
+    -------
+    list of dict
+        Per run, in path order: ``run`` (``task/method/seed<k>``), ``state`` (``"done"``; ``"training"``: its
+        lock names a live process; ``"stopped"``: progress recorded, no live process, rerun to resume;
+        ``"started"``: nothing recorded yet), ``steps``, ``target`` (the steps asked for, None if unknown),
+        ``violation_rate`` and ``feasible_reward`` of the last evaluation (None without one), ``wall_s``, and
+        ``eta_s`` for a training run (the steps left at its average pace so far; None otherwise).
+    """
+    from pbicrl._atomic import pid_alive
+
+    root = Path(runs)
+    if not root.is_dir():
+        raise ValueError(f"runs: {root} is not a directory (the --out of the training runs)")
+    out = []
+    for d in sorted(root.glob("*/*/seed*")):
+        if not d.is_dir():
+            continue
+        m = seed_metrics(d)
+        prog = d / "progress.json"
+        target = json.loads(prog.read_text(encoding="utf-8")).get("total_steps_target") if prog.is_file() else None
+        lock = d / "lock"
+        try:
+            pid = int(lock.read_text(encoding="utf-8").strip() or "0") if lock.is_file() else 0
+        except (OSError, ValueError):
+            pid = 0
+        if m["done"]:
+            state, target = "done", m["steps"]
+        elif pid and pid_alive(pid):
+            state = "training"
+        elif m["steps"]:
+            state = "stopped"
+        else:
+            state = "started"
+        eta = None
+        if state == "training" and target and m["steps"] and m["wall_s"]:
+            eta = max(0.0, (int(target) - int(m["steps"])) * float(m["wall_s"]) / int(m["steps"]))
+        out.append({"run": d.relative_to(root).as_posix(), "state": state, "steps": m["steps"], "target": target,
+                    "violation_rate": m["violation_rate"], "feasible_reward": m["feasible_reward"],
+                    "wall_s": m["wall_s"], "eta_s": eta})
     return out
 
 
