@@ -1,6 +1,6 @@
 """The ICRL benchmark's command line.
 
-``pbicrl benchmark icrl train|demos|report|status`` (mounted on ``pbicrl``), and ``python -m pbicrl.cli.icrl_benchmark``
+``pbicrl benchmark icrl run|train|demos|report|status`` (mounted on ``pbicrl``), and ``python -m pbicrl.cli.icrl_benchmark``
 (the same as ``pbicrl benchmark icrl train``, kept for the running trainings):
 
 ``train --out DIR --run TASK:METHOD:SEED:STEPS [--run ...] [--inferred-run RUN] [--cost-mode MODE] [--icl-budget B]``
@@ -10,6 +10,9 @@
     ranked demonstrations (:func:`pbicrl.experiments.icrl_demos.generate_ranked_demos`);
 ``report --runs DIR --out DIR``
     the benchmark's table and figures (:func:`pbicrl.experiments.icrl_report.build_report`);
+``run --out DIR [--tasks T,...] [--seeds 5] [--methods M,...] [--executor local|serial|ray] [--workers N]``
+    the whole benchmark: infer each task's wall, train every run at its budget, write the report
+    (:func:`pbicrl.experiments.icrl_run.run_benchmark`; ``--dry-run`` lists the runs);
 ``status --runs DIR``
     every run's state: done, training (with its time left), stopped (rerun to resume)
     (:func:`pbicrl.experiments.icrl_report.run_status`).
@@ -110,6 +113,33 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _csv(text: str | None) -> list[str] | None:
+    return None if text is None else [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _run(args: argparse.Namespace) -> int:
+    from pbicrl.experiments.icrl_run import plan_jobs, run_benchmark
+
+    jobs, skipped = plan_jobs(_csv(args.tasks), args.seeds, _csv(args.methods))
+    if args.dry_run:
+        for j in jobs:
+            print(j.name)
+        for s in skipped:
+            print(f"left out: {s}")
+        print(f"{len(jobs)} runs, {sum(j.steps for j in jobs) / 1e6:.1f} M environment steps in all")
+        return 0
+    res = run_benchmark(args.out, tasks=_csv(args.tasks), seeds=args.seeds, methods=_csv(args.methods),
+                        executor=args.executor, workers=args.workers, infer_dir=args.infer_dir,
+                        report_dir=None if args.no_report else args.report, infer_max_time=args.infer_max_time)
+    n = {k: sum(o["status"] == k for o in res["jobs"]) for k in ("done", "busy", "failed")}
+    print(f"{len(res['jobs'])} runs: {n['done']} done, {n['busy']} trained by another process, {n['failed']} failed"
+          + (f"; report {res['report']}" if res["report"] else ""))
+    for o in res["jobs"]:
+        if o["status"] == "failed":
+            print(f"failed: {o['job']}: {o['error'].splitlines()[0]}", file=sys.stderr)
+    return 1 if n["failed"] else 0
+
+
 def _hours(s: float | None) -> str:
     return "-" if s is None else f"{s / 3600:.2f}"
 
@@ -142,7 +172,7 @@ def _status(args: argparse.Namespace) -> int:
 
 
 def add_subcommands(sub: Any) -> None:
-    """Register ``pbicrl benchmark icrl {train,demos,report,status}`` (imports nothing optional until it runs)."""
+    """Register ``pbicrl benchmark icrl {run,train,demos,report,status}`` (imports nothing optional until it runs)."""
     from pbicrl.cli.argtypes import nonneg_int, positive_int
 
     p = sub.add_parser("benchmark", help="benchmarks: 'icrl' (the ICRL benchmark of Liu et al., ICLR 2023)",
@@ -152,6 +182,29 @@ def add_subcommands(sub: Any) -> None:
                              description="The five virtual tasks of the ICRL benchmark: train reference policies, "
                                          "generate ranked demonstrations, report.")
     acts = icrl.add_subparsers(dest="action", required=True, metavar="ACTION")
+    rn = acts.add_parser("run", help="the whole benchmark: walls, every run at its budget, the report; resumable",
+                         description="Infer each task's wall from its shipped demonstrations, train every (task, "
+                                     "method, seed) at the documented budget (pbicrl.experiments.icrl_run.BUDGETS), "
+                                     "then write the report. Resumable: rerun the same command; finished runs are "
+                                     "skipped, stopped ones continue from their checkpoints.")
+    rn.add_argument("--out", required=True, type=Path, help="root of the training runs")
+    rn.add_argument("--tasks", default=None, help="comma-separated tasks (default all five)")
+    rn.add_argument("--seeds", type=positive_int, default=5, help="seeds per row (default 5)")
+    rn.add_argument("--methods", default=None,
+                    help="comma-separated methods (default ppo,ppo_lag_true,ppo_lag_inferred,icl)")
+    rn.add_argument("--executor", choices=["local", "serial", "ray"], default="local",
+                    help="local process pool (default), serial, or Ray (pip install \"pbicrl[ray]\"; --out must be "
+                         "on a disk every worker sees)")
+    rn.add_argument("--workers", type=positive_int, default=None, help="runs at once (local; default: the cores)")
+    rn.add_argument("--infer-dir", type=Path, default=None,
+                    help="the walls' pbicrl infer runs: reused when there, else inferred (default OUT/infer)")
+    rn.add_argument("--infer-max-time", type=float, default=1500.0,
+                    help="seconds a wall inference may sample (default 1500)")
+    rn.add_argument("--report", type=Path, default=Path("docs/benchmarks/icrl"),
+                    help="where report.md goes (default docs/benchmarks/icrl)")
+    rn.add_argument("--no-report", action="store_true", help="train only")
+    rn.add_argument("--dry-run", action="store_true", help="list the runs and their steps; train nothing")
+    rn.set_defaults(func=_run)
     t = acts.add_parser("train", help="train runs (ppo, ppo_lag_true, ppo_lag_inferred, icl); resumable")
     _train_options(t)
     t.set_defaults(func=_train)
