@@ -138,6 +138,21 @@ def test_run_benchmark_refuses_bad_settings(tmp_path):
         run_benchmark(tmp_path, workers=0)
 
 
+def test_an_unconverged_wall_is_not_used(tmp_path):
+    from pbicrl.experiments.icrl_run import infer_wall
+
+    run = _fake_wall(tmp_path / "pendulum_wall")
+    assert infer_wall("pendulum", tmp_path) == run  # reused as it is
+    summary = json.loads((run / "summary.json").read_text())
+    (run / "summary.json").write_text(json.dumps({**summary, "converged": False}))
+    with pytest.raises(RuntimeError, match="did not converge"):
+        infer_wall("pendulum", tmp_path)
+    with pytest.raises(RuntimeError, match="did not converge"):
+        run_benchmark(tmp_path / "runs", tasks=["pendulum"], seeds=1, methods=["ppo_lag_inferred"],
+                      infer_dir=tmp_path, budgets=TINY, log=None)
+    assert not (tmp_path / "runs" / "pendulum").exists()  # refused before any training
+
+
 def test_cli_run_dry_run_lists_the_plan(capsys):
     from pbicrl.cli.app import main
 

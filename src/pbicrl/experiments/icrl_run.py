@@ -144,36 +144,42 @@ def wall_config_text(task: str) -> str:
 def infer_wall(task: str, infer_dir: str | os.PathLike[str], *, seed: int = 0, chains: int = 2,
                jobs: int | None = None, max_time: float = 1500.0, progress: bool = False) -> Path:
     """The ``pbicrl infer`` run of a task's wall from its shipped demonstrations: ``<infer_dir>/<task>_wall``,
-    reused when its ``summary.json`` exists, else inferred now (``--iterations auto`` until converged or
-    ``max_time`` seconds; the TOML is kept beside it as ``<task>_wall.toml``).
+    reused when its ``summary.json`` exists, else inferred now (``iterations = "auto"``: until every reported
+    quantity converged, or ``max_time`` seconds; the TOML is kept beside it as ``<task>_wall.toml``). The same
+    run as ``pbicrl infer icrl_<task> --config <task>_wall.toml --out <infer_dir>/<task>_wall --chains 2``.
 
     Raises
     ------
     RuntimeError
-        If the inference fails (its error was printed by ``pbicrl infer``).
+        If the inference (new or reused) did not converge: a cost from it would not mean what it says.
     """
+    import json
+
+    from pbicrl.api import infer_from_config
+    from pbicrl.config import load_config
     from pbicrl.envs.icrl_benchmark import icrl_task
+    from pbicrl.inference.data import load_dataset, resolve_dataset_path
 
     name = icrl_task(task).name
     root = Path(infer_dir)
     run = root / f"{name}_wall"
     if (run / "summary.json").is_file():
+        if json.loads((run / "summary.json").read_text(encoding="utf-8")).get("converged") is False:
+            raise RuntimeError(f"infer: {run} did not converge; remove it, or rerun it with a larger max_time")
         return run
     from pbicrl._atomic import write_text
-    from pbicrl.cli.app import main
 
     root.mkdir(parents=True, exist_ok=True)
     toml = root / f"{name}_wall.toml"
     write_text(toml, wall_config_text(name))
-    argv = ["infer", f"icrl_{name}", "--config", str(toml), "--out", str(run), "--chains", str(int(chains)),
-            "--seed", str(int(seed)), "--max-time", f"{float(max_time):g}"]
-    if jobs is not None:
-        argv += ["--jobs", str(int(jobs))]
-    if not progress:
-        argv.append("--no-progress")
-    rc = main(argv)
-    if rc != 0 or not (run / "summary.json").is_file():
-        raise RuntimeError(f"infer: the wall inference of {name} failed (exit status {rc}; `pbicrl {' '.join(argv)}`)")
+    data = resolve_dataset_path(f"icrl_{name}")
+    cfg = load_config(toml).updated(chains=int(chains), seed=int(seed), jobs=jobs, max_time=float(max_time))
+    post = infer_from_config(load_dataset(data), cfg, progress=progress)
+    if post.converged is False:
+        raise RuntimeError(f"infer: the wall of {name} did not converge in {max_time:g} s (nothing written); "
+                           "rerun with a larger max_time")
+    post.extra["data"]["path"] = str(data)
+    post.save(run, inputs=[data, toml])
     return run
 
 
