@@ -1,7 +1,7 @@
 """The ICRL benchmark's command line.
 
-``pbicrl benchmark icrl run|train|demos|report|status`` (mounted on ``pbicrl``), and ``python -m pbicrl.cli.icrl_benchmark``
-(the same as ``pbicrl benchmark icrl train``, kept for the running trainings):
+``pbicrl benchmark icrl run|train|demos|report|status`` (mounted on ``pbicrl``), and
+``python -m pbicrl.cli.icrl_benchmark`` (the same as ``pbicrl benchmark icrl train``, kept for the running trainings):
 
 ``train --out DIR --run TASK:METHOD:SEED:STEPS [--run ...] [--inferred-run RUN] [--cost-mode MODE] [--icl-budget B]``
     train the listed runs one after another (:func:`pbicrl.experiments.icrl_benchmark.train_policy`; each
@@ -106,8 +106,8 @@ def _demos(args: argparse.Namespace) -> int:
 def _report(args: argparse.Namespace) -> int:
     from pbicrl.experiments.icrl_report import build_report
 
-    tasks = None if args.tasks is None else [t.strip() for t in args.tasks.split(",") if t.strip()]
-    res = build_report(args.runs, args.out, tasks=tasks, seeds_planned=args.seeds, figures=not args.no_figures)
+    res = build_report(args.runs, args.out, tasks=_csv(args.tasks), seeds_planned=args.seeds,
+                       figures=not args.no_figures)
     print(f"wrote {Path(args.out) / 'report.md'}; missing rows: {len(res['missing'])}, runs in progress: "
           f"{len(res['in_progress'])}")
     return 0
@@ -130,7 +130,8 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     res = run_benchmark(args.out, tasks=_csv(args.tasks), seeds=args.seeds, methods=_csv(args.methods),
                         executor=args.executor, workers=args.workers, infer_dir=args.infer_dir,
-                        report_dir=None if args.no_report else args.report, infer_max_time=args.infer_max_time)
+                        report_dir=None if args.no_report else (args.report or args.out / "report"),
+                        infer_max_time=args.infer_max_time)
     n = {k: sum(o["status"] == k for o in res["jobs"]) for k in ("done", "busy", "failed")}
     print(f"{len(res['jobs'])} runs: {n['done']} done, {n['busy']} trained by another process, {n['failed']} failed"
           + (f"; report {res['report']}" if res["report"] else ""))
@@ -173,7 +174,7 @@ def _status(args: argparse.Namespace) -> int:
 
 def add_subcommands(sub: Any) -> None:
     """Register ``pbicrl benchmark icrl {run,train,demos,report,status}`` (imports nothing optional until it runs)."""
-    from pbicrl.cli.argtypes import nonneg_int, positive_int
+    from pbicrl.cli.argtypes import nonneg_int, positive_float, positive_int
 
     p = sub.add_parser("benchmark", help="benchmarks: 'icrl' (the ICRL benchmark of Liu et al., ICLR 2023)",
                        description="Benchmarks of pbicrl against the field's.")
@@ -198,10 +199,10 @@ def add_subcommands(sub: Any) -> None:
     rn.add_argument("--workers", type=positive_int, default=None, help="runs at once (local; default: the cores)")
     rn.add_argument("--infer-dir", type=Path, default=None,
                     help="the walls' pbicrl infer runs: reused when there, else inferred (default OUT/infer)")
-    rn.add_argument("--infer-max-time", type=float, default=1500.0,
+    rn.add_argument("--infer-max-time", type=positive_float, default=1500.0,
                     help="seconds a wall inference may sample (default 1500)")
-    rn.add_argument("--report", type=Path, default=Path("docs/benchmarks/icrl"),
-                    help="where report.md goes (default docs/benchmarks/icrl)")
+    rn.add_argument("--report", type=Path, default=None,
+                    help="where report.md, results.json and figures/ go (default OUT/report)")
     rn.add_argument("--no-report", action="store_true", help="train only")
     rn.add_argument("--dry-run", action="store_true", help="list the runs and their steps; train nothing")
     rn.set_defaults(func=_run)
