@@ -89,9 +89,11 @@ def _fake_wall(run):
     return run
 
 
-@pytest.mark.parametrize("executor", ["serial", "local"])
+@pytest.mark.parametrize("executor", ["serial", "local", pytest.param("ray", marks=pytest.mark.slow)])
 def test_run_benchmark_trains_resumes_and_reports(tmp_path, executor):
     pytest.importorskip("matplotlib")
+    if executor == "ray":
+        pytest.importorskip("ray")  # a local instance, started and shut down by the call
     _fake_wall(tmp_path / "runs" / "infer" / "pendulum_wall")
     lines = []
     kw = {"tasks": ["pendulum"], "seeds": 1, "methods": ["ppo", "ppo_lag_true", "ppo_lag_inferred"],
