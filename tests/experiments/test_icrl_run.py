@@ -44,6 +44,8 @@ def test_plan_is_seed_major_at_the_documented_budgets():
     ({"tasks": ["ant", "ant"]}, "tasks: listed twice"),
     ({"methods": ["sac"]}, "methods: unknown"),
     ({"seeds": 0}, "seeds: must be"),
+    ({"methods": ["ppo", "ppo"]}, "methods: listed twice"),
+    ({"tasks": ["pendulum"], "methods": ["icl"]}, "nothing to run: pendulum/icl: no ICL environment"),
 ])
 def test_plan_refuses_bad_input(kwargs, match):
     with pytest.raises(ValueError, match=match):

@@ -110,6 +110,8 @@ def plan_jobs(tasks: Sequence[str] | None = None, seeds: int = 5, methods: Seque
     bad = [m for m in ms if m not in METHODS]
     if bad:
         raise ValueError(f"methods: unknown {bad}; expected some of {list(METHODS)}")
+    if len(set(ms)) != len(ms):
+        raise ValueError(f"methods: listed twice in {ms}")
     if int(seeds) != seeds or seeds < 1:
         raise ValueError(f"seeds: must be an integer >= 1, got {seeds!r}")
     skipped = [f"{t}/icl: no ICL environment for this task (ICL runs on {', '.join(ICL_TASKS)})"
@@ -124,6 +126,8 @@ def plan_jobs(tasks: Sequence[str] | None = None, seeds: int = 5, methods: Seque
                 if steps is None:
                     raise ValueError(f"budgets: no steps for {t}/{m}")
                 jobs.append(Job(t, m, s, int(steps)))
+    if not jobs:
+        raise ValueError(f"nothing to run: {'; '.join(skipped)}")
     return jobs, skipped
 
 
