@@ -37,7 +37,7 @@ from pbicrl.experiments.tasks import Task, clean_stale_temp_dirs, execute_task, 
 if TYPE_CHECKING:
     from pbicrl.inference.samplers.driver import RunsCounter
 
-__all__ = ["Executor", "SerialExecutor", "LocalExecutor", "RayExecutor", "make_executor", "EXECUTORS"]
+__all__ = ["Executor", "SerialExecutor", "LocalExecutor", "RayExecutor", "make_executor", "import_ray", "EXECUTORS"]
 
 EXECUTORS = ("local", "serial", "ray")
 
@@ -220,7 +220,8 @@ def _ray_execute(task: Task, force: bool) -> dict[str, Any]:
     return execute_task(task, None, force=force)
 
 
-def _import_ray() -> Any:
+def import_ray() -> Any:
+    """Ray, or an ImportError that names the extra to install."""
     try:
         import ray
     except ImportError:
@@ -262,7 +263,7 @@ class RayExecutor(Executor):
         if self.max_in_flight:
             return int(self.max_in_flight)
         try:
-            ray = _import_ray()
+            ray = import_ray()
             if ray.is_initialized():
                 return int(ray.cluster_resources().get("CPU", 1))
         except ImportError:
@@ -275,7 +276,7 @@ class RayExecutor(Executor):
 
     def run(self, tasks: Sequence[Task], root: str | os.PathLike[str], *, force: bool = False,
             counter: RunsCounter | None = None) -> Iterator[tuple[Task, dict[str, Any]]]:
-        ray = _import_ray()  # ``counter`` is not used: a Ray worker may be on another machine
+        ray = import_ray()  # ``counter`` is not used: a Ray worker may be on another machine
         root = Path(root).absolute()
         started = False
         if not ray.is_initialized():
@@ -333,7 +334,7 @@ def make_executor(kind: str | None = None, workers: int | None = None, *, addres
             raise ValueError(f"workers: the serial executor runs one task at a time, got {workers}")
         return SerialExecutor()
     if kind == "ray":
-        _import_ray()
+        import_ray()
         remote = address or os.environ.get("RAY_ADDRESS")
         return RayExecutor(address, num_cpus=None if remote else workers, max_in_flight=workers if remote else None)
     raise ValueError(f"executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")

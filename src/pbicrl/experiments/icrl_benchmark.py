@@ -103,6 +103,7 @@ __all__ = [
     "METHODS",
     "CheckpointPolicy",
     "EpisodeRecorder",
+    "RunBusyError",
     "demonstrations_dataset",
     "episode_metrics",
     "expert_config",
@@ -729,6 +730,10 @@ def _file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+class RunBusyError(RuntimeError):
+    """Another live process holds the run directory's lock (it is training that run)."""
+
+
 def _acquire(lock: Path) -> None:
     """Create ``lock`` holding this process id; refuse while another live process holds it."""
     from pbicrl._atomic import pid_alive
@@ -742,7 +747,7 @@ def _acquire(lock: Path) -> None:
             except (OSError, ValueError):
                 pid = 0
             if pid and pid != os.getpid() and pid_alive(pid):
-                raise RuntimeError(f"out: {lock.parent} is being trained by process {pid}; wait for it or stop it")
+                raise RunBusyError(f"out: {lock.parent} is being trained by process {pid}; wait for it or stop it")
             lock.unlink(missing_ok=True)  # stale: its process is gone
             continue
         with os.fdopen(fd, "w") as fh:

@@ -65,7 +65,7 @@ def _read_jsonl(path: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
+def seed_metrics(seed_dir: str | os.PathLike[str], *, training: bool = True) -> dict[str, Any]:
     """The metrics of one seed's run directory (see the module docstring).
 
     Returns
@@ -79,7 +79,8 @@ def seed_metrics(seed_dir: str | os.PathLike[str]) -> dict[str, Any]:
     """
     d = Path(seed_dir)
     evals = _read_jsonl(d / "eval.jsonl")
-    curve = _read_jsonl(d / "curve.jsonl")[-100:]
+    # every training episode: the largest file of a run (25 MB for a pendulum run), read only when asked for
+    curve = _read_jsonl(d / "curve.jsonl")[-100:] if training else []
 
     def read(name: str) -> dict[str, Any]:
         return json.loads((d / name).read_text(encoding="utf-8")) if (d / name).is_file() else {}
@@ -145,7 +146,7 @@ def run_status(runs: str | os.PathLike[str]) -> list[dict[str, Any]]:
     for d in sorted(root.glob("*/*/seed*")):
         if not d.is_dir():
             continue
-        m = seed_metrics(d)
+        m = seed_metrics(d, training=False)
         prog = d / "progress.json"
         target = json.loads(prog.read_text(encoding="utf-8")).get("total_steps_target") if prog.is_file() else None
         lock = d / "lock"
@@ -357,8 +358,7 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
             lines += ["", "Learning curves: both metrics at every evaluation (10 stochastic episodes, 100 for the "
                       "pendulum) against the training steps; thin lines are seeds (dashed: still training), "
                       "the thick line of each method the mean over its finished seeds at the steps they all reached. "
-                      "The "
-                      "`ppo_lag_true` curves are the reference expert's: a row's numbers mean something once its "
+                      "The `ppo_lag_true` curves are the reference expert's: a row's numbers mean something once its "
                       "curve has flattened.", ""]
             lines += [f"![{t} curves]({p})" for t, p in curves.items()]
     if fig_note:
@@ -481,8 +481,8 @@ def curve_series(rows: dict[str, Any]) -> list[dict[str, Any]]:
         if fin:
             common = sorted(set.intersection(*(set(c["steps"]) for c in fin)))
             if common:
-                mean = {"steps": common, **{k: [float(np.mean([c[k][c["steps"].index(st)] for c in fin]))
-                                               for st in common]
+                at = [{st: i for i, st in enumerate(c["steps"])} for c in fin]
+                mean = {"steps": common, **{k: [float(np.mean([c[k][a[st]] for c, a in zip(fin, at)])) for st in common]
                                             for k in ("feasible_reward", "violation_rate")}}
         parts = [f"{len(fin)} seed{'s' if len(fin) != 1 else ''}"] if fin else ["no finished seed"]
         if prog:

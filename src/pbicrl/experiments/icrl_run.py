@@ -189,7 +189,7 @@ def infer_wall(task: str, infer_dir: str | os.PathLike[str], *, seed: int = 0, c
 
 def _train_job(job: Job, out: str, inferred_run: str | None, kwargs: dict[str, Any]) -> dict[str, Any]:
     """Train one job; never raises (the outcome says what happened), so one failed run does not stop the others."""
-    from pbicrl.experiments.icrl_benchmark import train_policy
+    from pbicrl.experiments.icrl_benchmark import RunBusyError, train_policy
 
     t0 = time.monotonic()
     quiet = kwargs.pop("quiet", False)
@@ -201,9 +201,10 @@ def _train_job(job: Job, out: str, inferred_run: str | None, kwargs: dict[str, A
         d = train_policy(job.task, job.method, job.seed, out, job.steps, inferred_run=inferred_run,
                          log=None if quiet else log, **kwargs)
         status, error, run_dir = "done", None, str(d)
+    except RunBusyError as exc:
+        status, error, run_dir = "busy", str(exc), None
     except RuntimeError as exc:
-        busy = "is being trained by process" in str(exc)
-        status, error, run_dir = ("busy" if busy else "failed"), str(exc), None
+        status, error, run_dir = "failed", str(exc), None
     except Exception as exc:  # noqa: BLE001 - reported per job, with its traceback
         status, error, run_dir = "failed", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}", None
     return {"job": job.name, "status": status, "error": error, "run_dir": run_dir,
@@ -328,10 +329,9 @@ def _run_local(args: list[tuple[Job, str, str | None]], kwargs: dict[str, Any], 
 
 def _run_ray(args: list[tuple[Job, str, str | None]], kwargs: dict[str, Any],
              record: Callable[[dict[str, Any]], None]) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise ImportError('the ray executor needs Ray: pip install "pbicrl[ray]"') from None
+    from pbicrl.experiments.executors import import_ray
+
+    ray = import_ray()
     started = not ray.is_initialized()
     if started:
         ray.init(address=os.environ.get("RAY_ADDRESS"), include_dashboard=False, log_to_driver=True)
