@@ -179,3 +179,26 @@ def test_infer_wall_on_the_shipped_ant_demonstrations(tmp_path):
     assert s["converged"] is True
     assert (tmp_path / "ant_wall.toml").read_text() == wall_config_text("ant")
     assert infer_wall("ant", tmp_path) == run  # reused, not inferred again
+
+
+def test_a_wall_with_unusable_draws_is_not_saved(tmp_path, monkeypatch):
+    """The library path refuses NaN draws as the command line does (nothing written under the infer directory)."""
+    import dataclasses
+    import warnings
+
+    import pbicrl.api
+    from pbicrl.experiments.icrl_run import infer_wall
+    from pbicrl.inference.posterior import Posterior
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        post = Posterior.load(_fake_wall(tmp_path / "fake"), issue_warnings=False)
+    w = np.array(post.penalty_weights, dtype=np.float64)
+    w[0, 1, 1] = np.nan
+    bad = dataclasses.replace(post, penalty_weights=w)
+    assert bad.converged is not False
+    monkeypatch.setattr(pbicrl.api, "infer_from_config", lambda *a, **k: bad)
+    with pytest.raises(ValueError, match="penalty_weights: 1 of 6 values .* NaN or infinite"):
+        infer_wall("pendulum", tmp_path / "infer")
+    assert not (tmp_path / "infer" / "pendulum_wall").exists()
+    post.require_usable_draws()  # the same draws without the NaN pass

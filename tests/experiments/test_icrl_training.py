@@ -149,6 +149,7 @@ def test_short_run_checkpoints_and_resumes(tmp_path):
     # other settings on the same directory are refused, naming what differs
     with pytest.raises(ValueError, match="other settings.*ppo"):
         train_policy("pendulum", "ppo_lag_true", 3, out, 768, config_overrides={**SMALL, "lr": 1e-3}, log=None)
+    assert not (run / "lock").exists()  # released on the refusal: the right settings go on
 
 
 def test_interrupted_run_resumes_from_its_checkpoint(tmp_path):
@@ -169,6 +170,7 @@ def test_a_busy_run_directory_is_refused(tmp_path):
     (run / "lock").write_text(str(os.getppid()))  # a live process
     with pytest.raises(RuntimeError, match="being trained by process"):
         train_policy("halfcheetah", "ppo", 0, tmp_path, 128, config_overrides=SMALL, log=None)
+    assert sorted(p.name for p in run.iterdir()) == ["lock"]  # refused before writing config.json
 
 
 def test_unsafe_checkpoint_is_refused(tmp_path):
@@ -301,6 +303,7 @@ def test_icl_method_resumes_and_its_run_is_reported(tmp_path):
     assert (run / "checkpoint.pt").read_bytes() == before
     with pytest.raises(ValueError, match="other settings.*icl"):
         train_policy("halfcheetah", "icl", 0, tmp_path, 4096, **kw)
+    assert not (run / "lock").exists()
 
     res = build_report(tmp_path, tmp_path / "report", tasks=["halfcheetah", "pendulum"], figures=False)
     row = res["tasks"]["halfcheetah"]["icl"]

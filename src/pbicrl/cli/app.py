@@ -169,17 +169,6 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         candidates=None if args.candidates is None else [c.strip() for c in args.candidates.split(",") if c.strip()])
 
 
-def _require_usable_draws(post: Any) -> None:
-    """A posterior whose draws hold NaN or infinite values is an error (exit 2, nothing written), not a result."""
-    for key in ("penalty_weights", "log_likelihood"):
-        arr = np.asarray(getattr(post, key), dtype=np.float64)
-        bad = int(arr.size - np.count_nonzero(np.isfinite(arr)))
-        if bad:
-            raise ValueError(f"{key}: {bad:,} of {arr.size:,} values of the draws are NaN or infinite, so the run has "
-                             "no usable draws and nothing was written; use a smaller beta or margins, or rescale "
-                             "the features")
-
-
 def _cmd_infer(args: argparse.Namespace) -> int:
     from pbicrl.api import infer_from_config
     from pbicrl.inference.data import load_dataset
@@ -195,7 +184,7 @@ def _cmd_infer(args: argparse.Namespace) -> int:
     check_out_dir(args.out, overwrite=args.overwrite, claim=True, inputs=inputs)
     ds = load_dataset(data)
     post = infer_from_config(ds, cfg, progress=not args.no_progress)
-    _require_usable_draws(post)
+    post.require_usable_draws()
     post.extra["data"]["path"] = str(data)
     extra_json = {}
     if args.check:
@@ -365,7 +354,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
                        progress=not args.no_progress,
                        run=lambda m: infer_from_config(ds, replace(cfg, margins=m.matrix.tolist()), progress=False))
     post = res.posterior
-    _require_usable_draws(post)
+    post.require_usable_draws()
     post.extra.setdefault("data", {})["path"] = str(data)
     post.extra["margin_tuning"] = res.to_dict()
     summary = post.summary()

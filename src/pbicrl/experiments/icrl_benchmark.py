@@ -443,14 +443,13 @@ def train_policy(task: str, method: str, seed: int, out: str | os.PathLike[str],
                 "eval_episodes": n_eval, "eval_every": int(eval_every)}
     if inferred is not None:
         identity["inferred_cost"] = inferred[1]
-    _write_identity(run, identity, {
-        **({"inferred_run": str(Path(inferred_run).resolve()),  # type: ignore[arg-type]
-            "inferred_boundary_source": inferred[0].boundary_source} if inferred else {}),
-        "note": "ICRL benchmark reference policy; see pbicrl.experiments.icrl_benchmark"})
-
     lock = run / "lock"
-    _acquire(lock)
+    _acquire(lock)  # before config.json: a second process is refused before it writes anything
     try:
+        _write_identity(run, identity, {
+            **({"inferred_run": str(Path(inferred_run).resolve()),  # type: ignore[arg-type]
+                "inferred_boundary_source": inferred[0].boundary_source} if inferred else {}),
+            "note": "ICRL benchmark reference policy; see pbicrl.experiments.icrl_benchmark"})
         sink: list[dict[str, Any]] = []
         coord_fn = lambda o, info: np.asarray([o[0]], dtype=np.float64)  # noqa: E731
         if method == "ppo_lag_true":
@@ -602,14 +601,13 @@ def _train_icl(task: str, seed: int, out: Path, total_steps: int, *, eval_every:
                 "icl_budget": budget, "expert_data": data,
                 "expert_data_sha256": hashlib.sha256(Path(resolve_dataset_path(data)).read_bytes()).hexdigest(),
                 "expert_group": 1, "n_expert": len(expert), "eval_episodes": n_eval, "eval_every": eval_every}
-    _write_identity(run, identity, {
-        "note": "ICRL benchmark: the ICL baseline (pbicrl.baselines.icl) on the good group of the task's ranked "
-                "demonstrations; checkpoint.pt, summary.json, budget.json, progress.log are ICL's own files; see "
-                "pbicrl.experiments.icrl_benchmark"})
-
     lock = run / "lock"
     _acquire(lock)
     try:
+        _write_identity(run, identity, {
+            "note": "ICRL benchmark: the ICL baseline (pbicrl.baselines.icl) on the good group of the task's "
+                    "ranked demonstrations; checkpoint.pt, summary.json, budget.json, progress.log are ICL's own "
+                    "files; see pbicrl.experiments.icrl_benchmark"})
         curve, evals, ck = run / "curve.jsonl", run / "eval.jsonl", run / ICL_CHECKPOINT
         if (run / "done.json").exists() and (run / "summary.json").exists():
             say(f"{tag} already done")

@@ -156,6 +156,9 @@ def infer_wall(task: str, infer_dir: str | os.PathLike[str], *, seed: int = 0, c
     ------
     RuntimeError
         If the inference (new or reused) did not converge: a cost from it would not mean what it says.
+    ValueError
+        If a new inference's draws hold NaN or infinite values (:meth:`Posterior.require_usable_draws`; nothing
+        written).
     """
     import json
 
@@ -182,6 +185,7 @@ def infer_wall(task: str, infer_dir: str | os.PathLike[str], *, seed: int = 0, c
     if post.converged is False:
         raise RuntimeError(f"infer: the wall of {name} did not converge in {max_time:g} s (nothing written); "
                            "rerun with a larger max_time")
+    post.require_usable_draws()
     post.extra["data"]["path"] = str(data)
     post.save(run, inputs=[data, toml])
     return run

@@ -347,6 +347,23 @@ class Posterior(PriorDrivenSummaries, PosteriorWarnings, DrawsView):
             post.emit_warnings(stacklevel=3)  # attributed to the caller of load
         return post
 
+    def require_usable_draws(self) -> None:
+        """Refuse draws holding NaN or infinite values: such a run is an error, not a result.
+
+        Raises
+        ------
+        ValueError
+            If ``penalty_weights`` or ``log_likelihood`` (shape ``(n_chains, n_draws, ...)``) holds a NaN or an
+            infinity; the message counts them and says what to change.
+        """
+        for key in ("penalty_weights", "log_likelihood"):
+            arr = np.asarray(getattr(self, key), dtype=np.float64)
+            bad = int(arr.size - np.count_nonzero(np.isfinite(arr)))
+            if bad:
+                raise ValueError(f"{key}: {bad:,} of {arr.size:,} values of the draws are NaN or infinite, so the run "
+                                 "has no usable draws and nothing was written; use a smaller beta or margins, or "
+                                 "rescale the features")
+
     def save(self, out_dir: str | os.PathLike[str], *, overwrite: bool = False,
              extra_json: dict[str, Any] | None = None, inputs: Sequence[Any] = ()) -> Path:
         """Write the run directory (``summary.json``, ``chains.npz``, ...) atomically: :func:`pbicrl.io.runs.save_run`,
