@@ -17,7 +17,7 @@ from pbicrl.experiments.icrl_demos import (  # noqa: E402
     classify_episode,
     generate_ranked_demos,
 )
-from pbicrl.experiments.icrl_report import build_report, curve_series, seed_metrics  # noqa: E402
+from pbicrl.experiments.icrl_report import build_report, curve_series, plateau, seed_metrics  # noqa: E402
 
 SMALL = dict(n_envs=2, n_steps=64, minibatch_size=64, n_epochs=1)
 
@@ -216,6 +216,52 @@ def test_curve_mean_is_over_finished_seeds_only():
     assert len(by["ppo_lag_true"]["in_progress"]) == 1
     assert by["ppo_lag_true"]["label"] == "PPO-Lagrangian, true cost (2 seeds, 1 in progress)"
     assert by["icl"]["mean"] is None and by["icl"]["label"] == "ICL baseline (no finished seed, 1 in progress)"
+
+
+def _curve(steps, feas, done=True):
+    return {"done": done, "eval_curve": {"steps": list(steps), "feasible_reward": list(feas),
+                                         "violation_rate": [0.0] * len(steps)}}
+
+
+def test_plateau_compares_the_last_fifth_of_the_steps_with_the_fifth_before():
+    steps = range(10, 101, 10)  # windows (80, 100] and (60, 80]: evaluations 90, 100 and 70, 80
+    rising = _curve(steps, [1, 2, 3, 4, 5, 6, 100, 100, 120, 120])  # 120 against 100: +20%
+    flat = _curve(steps, [1, 2, 3, 4, 5, 6, 100, 98, 101, 101])  # 101 against 99: +2%
+    p = plateau({"seed0": rising})
+    assert (p["last"], p["before"], p["seeds"]) == (120.0, 100.0, 1)
+    assert p["change"] == pytest.approx(0.2) and p["stable"] is False
+    p = plateau({"seed0": flat})
+    assert p["change"] == pytest.approx(2 / 99) and p["stable"] is True
+    # averaged over the finished seeds; a run in progress is left out
+    p = plateau({"a": rising, "b": flat, "c": _curve(steps, [0] * 6 + [1, 1, 1000, 1000], done=False)})
+    assert (p["last"], p["before"], p["seeds"]) == (110.5, 99.5, 2)
+    assert plateau({"seed0": rising}, tol=0.25)["stable"] is True
+    # a falling reward beyond the tolerance is not stable either
+    assert plateau({"seed0": _curve(steps, [0] * 6 + [100, 100, 50, 50])})["stable"] is False
+    # nothing to compare: a single evaluation, or nothing finished
+    assert plateau({"seed0": _curve([100], [5.0])}) is None
+    assert plateau({"seed0": _curve(steps, [1.0] * 10, done=False)}) is None
+    assert plateau({"seed0": {"done": True}}) is None
+    assert np.isnan(plateau({"seed0": _curve(steps, [0.0] * 10)})["change"])
+    with pytest.raises(ValueError, match="window"):
+        plateau({}, window=0.6)
+    with pytest.raises(ValueError, match="tol"):
+        plateau({}, tol=-1)
+
+
+def test_report_says_whether_the_expert_stopped_improving(tmp_path):
+    runs = tmp_path / "runs"
+    for k, feas in enumerate(([10.0, 10.0, 10.0, 10.0, 20.0], [10.0, 10.0, 10.0, 12.0, 24.0])):
+        d = runs / "swimmer" / "ppo_lag_true" / f"seed{k}"
+        _fake_seed(d, [[(f, f, 0)] for f in feas])
+        (d / "eval.jsonl").write_text("".join(json.dumps({"steps": 200 * (i + 1), "episodes": [
+            {"reward": f, "reward_nc": f, "constraint": 0}]}) + "\n" for i, f in enumerate(feas)))
+    res = build_report(runs, tmp_path / "out", tasks=["swimmer"], seeds_planned=2, figures=False)
+    p = res["tasks"]["swimmer"]["ppo_lag_true"]["plateau"]
+    assert (p["last"], p["before"], p["stable"]) == (22.0, 11.0, False)
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "Had the policies stopped improving?" in md
+    assert "| swimmer | PPO-Lagrangian, true cost | 2 | 22 | 11 | +100.0% | no, still rising |" in md
 
 
 def test_report_names_the_runs_path_as_given(tmp_path, monkeypatch):

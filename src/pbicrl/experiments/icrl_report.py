@@ -6,7 +6,8 @@ figure per task (``figures/icrl_<task>.png``: violation rate against feasible cu
 points with error bars of one standard deviation over seeds) and its learning curves
 (``figures/icrl_<task>_curves.png``: both metrics of every evaluation against the training steps, per seed and
 method, so a reader sees whether a row's policies had converged). ``report.md`` also checks issue 28's targets
-per task from the rows' means (boundary, violation, feasible reward, against ICL).
+per task from the rows' means (boundary, violation, feasible reward, against ICL), and whether each
+PPO-Lagrangian row had stopped improving at its budget (:func:`plateau`).
 
 Metrics, as the benchmark defines them (``shared/notes/icrl-benchmark.md`` section 2), per seed, from the
 **evaluation episodes of the stochastic policy** at the run's last evaluation (``eval.jsonl``: 10 episodes, 100
@@ -34,12 +35,18 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["REPORT_METHODS", "build_report", "curve_series", "run_status", "seed_metrics"]
+__all__ = ["PLATEAU_TOL", "PLATEAU_WINDOW", "REPORT_METHODS", "build_report", "curve_series", "plateau",
+           "run_status", "seed_metrics"]
 
 REPORT_METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
 _LABELS = {"ppo": "PPO (no constraint)", "ppo_lag_true": "PPO-Lagrangian, true cost",
            "ppo_lag_inferred": "PPO-Lagrangian, pbicrl inferred cost", "icl": "ICL baseline"}
 _COLOURS = {m: f"C{i}" for i, m in enumerate(REPORT_METHODS)}  # one colour per method in every figure
+PLATEAU_WINDOW = 0.2
+"""Share of a run's steps in each of the two windows :func:`plateau` compares (the last fifth and the one
+before)."""
+PLATEAU_TOL = 0.05
+"""Largest relative change of the feasible reward between those windows that :func:`plateau` calls stable."""
 
 
 def _read_jsonl(path: Path) -> list[dict[str, Any]]:
@@ -251,6 +258,7 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
                 if inf:
                     agg["inferred_boundary"] = inf[0].get("boundary")
                     agg["inferred_mode"] = inf[0].get("mode")
+                agg["plateau"] = plateau(done)
                 locs = [v["icl_location"] for v in done.values() if "icl_location" in v]
                 if locs:
                     found = [float(x) for x in locs if x is not None]
@@ -338,6 +346,7 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
             lines.append(f"| {t} | {a.get('inferred_mode')} | {b} | x {'<' if spec.side == 'behind' else '>'} "
                          f"{spec.wall:g} |")
     lines += _target_lines(res, names)
+    lines += _plateau_lines(res, names, methods)
     icl = [(t, res["tasks"][t]["icl"]) for t in names if "icl" in res["tasks"][t]
            and res["tasks"][t]["icl"].get("icl_location_seeds")]
     if icl:
@@ -415,6 +424,28 @@ def _target_lines(res: dict[str, Any], names: Sequence[str]) -> list[str]:
     return out if any_row else []
 
 
+def _plateau_lines(res: dict[str, Any], names: Sequence[str], methods: Sequence[str]) -> list[str]:
+    """The PPO-Lagrangian rows' :func:`plateau` check: had the policies stopped improving at their budget?"""
+    shown = [m for m in ("ppo_lag_true", "ppo_lag_inferred") if m in methods]
+    rows = [(t, m, res["tasks"][t][m]["plateau"]) for t in names for m in shown
+            if (res["tasks"][t][m].get("plateau") is not None)]
+    if not rows:
+        return []
+    w = rows[0][2]["window"]
+    tol = rows[0][2]["tol"]
+    out = ["", f"Had the policies stopped improving? Mean evaluation feasible reward over the evaluations in the "
+               f"last {w:.0%} of each finished seed's steps against the {w:.0%} before, averaged over the seeds; "
+               f"stable when the change is within ±{tol:.0%} (`plateau` in `results.json`). The issue asks for "
+               "budgets at which the true-cost expert is stable.", "",
+           "| task | method | seeds | feasible reward, last window | window before | change | stable |",
+           "|---|---|---|---|---|---|---|"]
+    for t, m, p in rows:
+        change = f"{p['change']:+.1%}" if math.isfinite(p["change"]) else "-"
+        out.append(f"| {t} | {_LABELS[m]} | {p['seeds']} | {p['last']:.0f} | {p['before']:.0f} | {change} | "
+                   f"{'yes' if p['stable'] else 'no, still rising' if p['change'] > 0 else 'no'} |")
+    return out
+
+
 def _figures(res: dict[str, Any], fig_dir: Path) -> tuple[dict[str, str], dict[str, str]]:
     """The scatter figure and the learning curves of every task with a finished seed: (scatter, curves) paths."""
     import matplotlib
@@ -450,6 +481,58 @@ def _figures(res: dict[str, Any], fig_dir: Path) -> tuple[dict[str, str], dict[s
         if curve:
             curves[t] = curve
     return drawn, curves
+
+
+def plateau(per_seed: dict[str, dict[str, Any]], *, window: float = PLATEAU_WINDOW,
+            tol: float = PLATEAU_TOL) -> dict[str, Any] | None:
+    """Whether a row's policies had stopped improving when training ended (issue 28 asks for budgets at which the
+    true-cost expert's feasible reward is stable).
+
+    Per finished seed with evaluations, the mean evaluation feasible reward over the evaluations in the last
+    ``window`` of its steps, :math:`(T(1-w), T]`, and over the window before, :math:`(T(1-2w), T(1-w)]`; both
+    averaged over the seeds. The row is *stable* when the relative change between them is at most ``tol`` in
+    absolute value (evaluations are 10 stochastic episodes each, so a window of several evaluations and seeds
+    is what is compared, not two single evaluations).
+
+    Parameters
+    ----------
+    per_seed : dict
+        ``{seed: seed_metrics(...)}``, as in ``build_report``'s results (``per_seed`` of a row).
+    window : float
+        In (0, 0.5].
+    tol : float
+        >= 0.
+
+    Returns
+    -------
+    dict or None
+        ``last``, ``before`` (mean feasible reward in each window), ``change`` (``(last - before) / |before|``,
+        NaN when ``before`` is 0), ``stable`` (bool), ``seeds`` (how many were used), ``window``, ``tol``; None
+        when no finished seed has an evaluation in both windows.
+    """
+    if not 0 < window <= 0.5:
+        raise ValueError(f"window: must be in (0, 0.5], got {window!r}")
+    if not tol >= 0:
+        raise ValueError(f"tol: must be >= 0, got {tol!r}")
+    last, before = [], []
+    for v in per_seed.values():
+        c = v.get("eval_curve") or {}
+        if not v.get("done") or not c.get("steps"):
+            continue
+        st = np.asarray(c["steps"], dtype=np.float64)
+        fr = np.asarray(c["feasible_reward"], dtype=np.float64)
+        end = float(st[-1])
+        a = fr[(st > end * (1 - window)) & (st <= end)]
+        b = fr[(st > end * (1 - 2 * window)) & (st <= end * (1 - window))]
+        if a.size and b.size:
+            last.append(float(np.mean(a)))
+            before.append(float(np.mean(b)))
+    if not last:
+        return None
+    la, be = float(np.mean(last)), float(np.mean(before))
+    change = (la - be) / abs(be) if be != 0 else math.nan
+    return {"last": la, "before": be, "change": change, "stable": bool(abs(change) <= tol), "seeds": len(last),
+            "window": float(window), "tol": float(tol)}
 
 
 def curve_series(rows: dict[str, Any]) -> list[dict[str, Any]]:
