@@ -306,6 +306,13 @@ def test_cli_benchmark_icrl(tmp_path, capsys):
     assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--out", str(tmp_path / "o"), "--tasks",
                  "pendulum", "--no-figures"]) == 0
     assert "missing rows: 3" in capsys.readouterr().out
+    assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--out", str(tmp_path / "o"), "--tasks",
+                 "pendulum", "--methods", "ppo,ppo_lag_true", "--no-figures"]) == 0
+    assert "missing rows: 1" in capsys.readouterr().out
+    assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--methods", "sac"]) == 2
+    assert "methods: unknown ['sac']" in capsys.readouterr().err
+    assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--methods", ","]) == 2
+    assert "--methods: no method given" in capsys.readouterr().err
     assert main(["benchmark", "icrl", "train", "--out", str(runs), "--run", "pendulum:ppo_lag_inferred:0:100"]) == 2
     assert "--inferred-run" in capsys.readouterr().err
 

@@ -106,8 +106,12 @@ def _demos(args: argparse.Namespace) -> int:
 def _report(args: argparse.Namespace) -> int:
     from pbicrl.experiments.icrl_report import build_report
 
+    methods = _csv(args.methods)
+    if methods is not None and not methods:
+        raise ValueError("--methods: no method given; leave it out for all four")
+    kw = {} if methods is None else {"methods": methods}
     res = build_report(args.runs, args.out, tasks=_csv(args.tasks), seeds_planned=args.seeds,
-                       figures=not args.no_figures)
+                       figures=not args.no_figures, **kw)
     print(f"wrote {Path(args.out) / 'report.md'}; missing rows: {len(res['missing'])}, runs in progress: "
           f"{len(res['in_progress'])}")
     return 0
@@ -239,6 +243,8 @@ def add_subcommands(sub: Any) -> None:
                    help="where report.md, results.json and figures/ go (default docs/benchmarks/icrl)")
     r.add_argument("--tasks", default=None, help="comma-separated tasks (default all five)")
     r.add_argument("--seeds", type=positive_int, default=5, help="seeds planned per row (default 5)")
+    r.add_argument("--methods", default=None,
+                   help="comma-separated methods, the rows per task (default ppo,ppo_lag_true,ppo_lag_inferred,icl)")
     r.add_argument("--no-figures", action="store_true", help="no figures")
     r.set_defaults(func=_report)
     st = acts.add_parser("status", help="every run's state: done, training (time left), stopped",
