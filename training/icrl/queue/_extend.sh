@@ -1,4 +1,4 @@
-# Sourced after _env.sh: the 6 M-step continuation of HalfCheetah's PPO-Lagrangian rows, kept in its own root
+# Sourced after _env.sh: the 6 M-step continuation of HalfCheetah's and Ant's PPO-Lagrangian rows, kept in its own root
 # ($EXT, committed as training/icrl_6m) so that the 3 M-step report stays whole while it trains. Each run starts
 # as a copy of its finished 3 M-step run (checkpoint, logs, config) and continues to 6 M steps.
 EXT=${ICRL_EXT:-/work/icrl_6m}
