@@ -440,9 +440,13 @@ def _plateau_lines(res: dict[str, Any], names: Sequence[str], methods: Sequence[
            "| task | method | seeds | feasible reward, last window | window before | change | stable |",
            "|---|---|---|---|---|---|---|"]
     for t, m, p in rows:
-        change = f"{p['change']:+.1%}" if math.isfinite(p["change"]) else "-"
+        if not math.isfinite(p["change"]):
+            change, verdict = "-", "- (no reward before)"
+        else:
+            change = f"{p['change']:+.1%}"
+            verdict = "yes" if p["stable"] else "no, still rising" if p["change"] > 0 else "no, falling"
         out.append(f"| {t} | {_LABELS[m]} | {p['seeds']} | {p['last']:.0f} | {p['before']:.0f} | {change} | "
-                   f"{'yes' if p['stable'] else 'no, still rising' if p['change'] > 0 else 'no'} |")
+                   f"{verdict} |")
     return out
 
 
