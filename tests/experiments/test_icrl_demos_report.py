@@ -262,6 +262,16 @@ def test_report_says_whether_the_expert_stopped_improving(tmp_path):
     md = (tmp_path / "out" / "report.md").read_text()
     assert "Had the policies stopped improving?" in md
     assert "| swimmer | PPO-Lagrangian, true cost | 2 | 22 | 11 | +100.0% | no, still rising |" in md
+    assert "**1 of 4 rows** (1 task x 4 methods)" in md
+    _fake_seed(runs / "halfcheetah" / "ppo_lag_true" / "seed0", [[(1.0, 1.0, 0)]])
+    _fake_seed(runs / "halfcheetah" / "ppo_lag_inferred" / "seed0", [[(1.0, 1.0, 0)]],
+               config={"inferred_cost": {"mode": "conservative", "boundary": {"wall": [-2.8]}}})
+    build_report(runs, tmp_path / "out", tasks=["halfcheetah"], methods=["ppo_lag_true", "ppo_lag_inferred"],
+                 figures=False)
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "**2 of 2 rows** (1 task x 2 methods)" in md
+    assert "| halfcheetah | -2.800 vs -3: safe side by 0.200 (met) | +0.00 (met) | 1.00 (met) | - (ICL not in this " \
+           "report) |" in md
 
 
 def test_report_names_the_runs_path_as_given(tmp_path, monkeypatch):
