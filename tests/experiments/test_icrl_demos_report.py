@@ -306,6 +306,16 @@ def test_report_refuses_bad_input(tmp_path):
     assert not (tmp_path / "out").exists()
     with pytest.raises(ValueError, match="methods: unknown"):
         build_report(tmp_path / "r", tmp_path / "out", methods=["sac"])
+    # empty is refused, not read as "all" (tasks) or as a report with no rows (methods)
+    with pytest.raises(ValueError, match="tasks: none given"):
+        build_report(tmp_path / "r", tmp_path / "out", tasks=[])
+    with pytest.raises(ValueError, match="methods: none given"):
+        build_report(tmp_path / "r", tmp_path / "out", methods=[])
+    with pytest.raises(ValueError, match=r"methods: listed twice: \['ppo'\]"):
+        build_report(tmp_path / "r", tmp_path / "out", methods=["ppo", "icl", "ppo"])
+    with pytest.raises(ValueError, match=r"tasks: listed twice: \['halfcheetah'\]"):
+        build_report(tmp_path / "r", tmp_path / "out", tasks=["halfcheetah", "halfcheetah"])
+    assert not (tmp_path / "out").exists()
 
 
 def test_cli_benchmark_icrl(tmp_path, capsys):
@@ -322,7 +332,9 @@ def test_cli_benchmark_icrl(tmp_path, capsys):
     assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--methods", "sac"]) == 2
     assert "methods: unknown ['sac']" in capsys.readouterr().err
     assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--methods", ","]) == 2
-    assert "--methods: no method given" in capsys.readouterr().err
+    assert "methods: none given" in capsys.readouterr().err
+    assert main(["benchmark", "icrl", "report", "--runs", str(runs), "--tasks", " , "]) == 2
+    assert "tasks: none given" in capsys.readouterr().err
     assert main(["benchmark", "icrl", "train", "--out", str(runs), "--run", "pendulum:ppo_lag_inferred:0:100"]) == 2
     assert "--inferred-run" in capsys.readouterr().err
 

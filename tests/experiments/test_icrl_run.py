@@ -45,6 +45,9 @@ def test_plan_is_seed_major_at_the_documented_budgets():
     ({"methods": ["sac"]}, "methods: unknown"),
     ({"seeds": 0}, "seeds: must be"),
     ({"methods": ["ppo", "ppo"]}, "methods: listed twice"),
+    ({"tasks": ["ant", "pbicrl/BlockedAnt-v0"]}, r"tasks: listed twice: \['ant'\]"),
+    ({"tasks": []}, "tasks: none given"),  # not "all five": --tasks "," must not start every run
+    ({"methods": []}, "methods: none given"),
     ({"tasks": ["pendulum"], "methods": ["icl"]}, "nothing to run: pendulum/icl: no ICL environment"),
 ])
 def test_plan_refuses_bad_input(kwargs, match):
@@ -167,6 +170,9 @@ def test_cli_run_dry_run_lists_the_plan(capsys):
     assert not Path("unused").exists()
     assert main(["benchmark", "icrl", "run", "--out", "x", "--methods", "sac", "--dry-run"]) == 2
     assert "methods: unknown" in capsys.readouterr().err
+    assert main(["benchmark", "icrl", "run", "--out", "x", "--tasks", ",", "--dry-run"]) == 2
+    assert "tasks: none given" in capsys.readouterr().err
+    assert not Path("x").exists()
 
 
 @pytest.mark.slow

@@ -107,8 +107,6 @@ def _report(args: argparse.Namespace) -> int:
     from pbicrl.experiments.icrl_report import build_report
 
     methods = _csv(args.methods)
-    if methods is not None and not methods:
-        raise ValueError("--methods: no method given; leave it out for all four")
     kw = {} if methods is None else {"methods": methods}
     res = build_report(args.runs, args.out, tasks=_csv(args.tasks), seeds_planned=args.seeds,
                        figures=not args.no_figures, **kw)

@@ -110,6 +110,7 @@ __all__ = [
     "icl_config",
     "load_run_checkpoint",
     "rollout_episodes",
+    "selection",
     "train_policy",
 ]
 
@@ -208,6 +209,32 @@ def icl_config(task: str, total_steps: int, budget: str = "default",
 def _check_method(method: str) -> None:
     if method not in METHODS:
         raise ValueError(f"method: unknown method {method!r}; expected one of {list(METHODS)}")
+
+
+def selection(field: str, given: Sequence[str] | None, default: Sequence[str], *,
+              canonical: Callable[[str], str] | None = None) -> list[str]:
+    """The names picked for ``field`` (``tasks``, ``methods``): ``default`` when ``given`` is None.
+
+    An empty ``given`` is refused rather than read as "all" (``--tasks ","`` would otherwise start every run),
+    as are names listed twice and, without ``canonical``, names outside ``default``. ``canonical`` maps a
+    name to its canonical spelling and raises ``ValueError`` for an unknown one (e.g. a task's ``pbicrl/...`` id).
+    """
+    if given is None:
+        return list(default)
+    given = list(given)
+    if not given:
+        raise ValueError(f"{field}: none given; leave it out for all of {list(default)}")
+    if canonical is None:
+        bad = [x for x in given if x not in default]
+        if bad:
+            raise ValueError(f"{field}: unknown {bad}; expected some of {list(default)}")
+        names = given
+    else:
+        names = [canonical(x) for x in given]
+    twice = sorted({x for x in names if names.count(x) > 1})
+    if twice:
+        raise ValueError(f"{field}: listed twice: {twice}")
+    return names
 
 
 def episode_metrics(rewards: Sequence[float], costs: Sequence[float]) -> dict[str, float | int]:

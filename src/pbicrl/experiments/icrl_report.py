@@ -207,9 +207,10 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     out_dir : path
         Where the report goes (created).
     tasks : sequence of str, optional
-        Tasks to report (default: all five, in the benchmark's order; absent ones are reported missing).
+        Tasks to report (default: all five, in the benchmark's order; absent ones are reported missing). Not empty,
+        no task twice.
     methods : sequence of str
-        Methods (rows) per task (default :data:`REPORT_METHODS`).
+        Methods (rows) per task (default :data:`REPORT_METHODS`). Not empty, no method twice.
     seeds_planned : int
         Seeds each row should have (stated against the seeds found).
     figures : bool
@@ -223,15 +224,13 @@ def build_report(runs: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     """
     from pbicrl._atomic import write_json, write_text
     from pbicrl.envs.icrl_benchmark import ICRL_TASKS, icrl_task
-    from pbicrl.experiments.icrl_benchmark import ICL_TASKS
+    from pbicrl.experiments.icrl_benchmark import ICL_TASKS, selection
 
     root = Path(runs)
     if not root.is_dir():
         raise ValueError(f"runs: {root} is not a directory (the --out of the training runs)")
-    names = [icrl_task(t).name for t in (tasks or list(ICRL_TASKS))]
-    unknown = [m for m in methods if m not in REPORT_METHODS]
-    if unknown:
-        raise ValueError(f"methods: unknown {unknown}; expected some of {list(REPORT_METHODS)}")
+    names = selection("tasks", tasks, list(ICRL_TASKS), canonical=lambda t: icrl_task(t).name)
+    methods = selection("methods", methods, REPORT_METHODS)
     if int(seeds_planned) != seeds_planned or seeds_planned < 1:
         raise ValueError(f"seeds_planned: must be an integer >= 1, got {seeds_planned!r}")
     # as given: a committed report names the path a reader can rerun it on, not this machine's absolute one

@@ -101,17 +101,10 @@ def plan_jobs(tasks: Sequence[str] | None = None, seeds: int = 5, methods: Seque
     (list of Job, list of str)
     """
     from pbicrl.envs.icrl_benchmark import ICRL_TASKS, icrl_task
-    from pbicrl.experiments.icrl_benchmark import ICL_TASKS, METHODS
+    from pbicrl.experiments.icrl_benchmark import ICL_TASKS, METHODS, selection
 
-    names = [icrl_task(t).name for t in (tasks or list(ICRL_TASKS))]
-    if len(set(names)) != len(names):
-        raise ValueError(f"tasks: listed twice in {list(tasks or [])}")
-    ms = list(methods or METHODS)
-    bad = [m for m in ms if m not in METHODS]
-    if bad:
-        raise ValueError(f"methods: unknown {bad}; expected some of {list(METHODS)}")
-    if len(set(ms)) != len(ms):
-        raise ValueError(f"methods: listed twice in {ms}")
+    names = selection("tasks", tasks, list(ICRL_TASKS), canonical=lambda t: icrl_task(t).name)
+    ms = selection("methods", methods, METHODS)
     if int(seeds) != seeds or seeds < 1:
         raise ValueError(f"seeds: must be an integer >= 1, got {seeds!r}")
     skipped = [f"{t}/icl: no ICL environment for this task (ICL runs on {', '.join(ICL_TASKS)})"
