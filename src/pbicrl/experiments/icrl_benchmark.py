@@ -213,11 +213,32 @@ def _check_method(method: str) -> None:
 
 def selection(field: str, given: Sequence[str] | None, default: Sequence[str], *,
               canonical: Callable[[str], str] | None = None) -> list[str]:
-    """The names picked for ``field`` (``tasks``, ``methods``): ``default`` when ``given`` is None.
+    """The names picked for ``field`` (``tasks``, ``methods``), checked.
 
     An empty ``given`` is refused rather than read as "all" (``--tasks ","`` would otherwise start every run),
-    as are names listed twice and, without ``canonical``, names outside ``default``. ``canonical`` maps a
-    name to its canonical spelling and raises ``ValueError`` for an unknown one (e.g. a task's ``pbicrl/...`` id).
+    as are names listed twice.
+
+    Parameters
+    ----------
+    field : str
+        The option's name, used in the error messages.
+    given : sequence of str or None
+        The user's names; None for all of ``default``.
+    default : sequence of str
+        Every name, in order.
+    canonical : callable, optional
+        Maps a name to its canonical spelling and raises ``ValueError`` for an unknown one (a task's
+        ``pbicrl/...`` id to its short name). Without it a name must be in ``default``.
+
+    Returns
+    -------
+    list of str
+        The canonical names, in the order given.
+
+    Raises
+    ------
+    ValueError
+        Empty, unknown or repeated names.
     """
     if given is None:
         return list(default)

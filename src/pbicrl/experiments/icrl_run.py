@@ -88,11 +88,11 @@ def plan_jobs(tasks: Sequence[str] | None = None, seeds: int = 5, methods: Seque
     Parameters
     ----------
     tasks : sequence of str, optional
-        Task names or ``pbicrl/...`` ids (default all five).
+        Task names or ``pbicrl/...`` ids (default all five; not empty, none twice).
     seeds : int
         Seeds ``0 .. seeds-1`` per row.
     methods : sequence of str, optional
-        Default all four (``ppo``, ``ppo_lag_true``, ``ppo_lag_inferred``, ``icl``).
+        Default all four (``ppo``, ``ppo_lag_true``, ``ppo_lag_inferred``, ``icl``); not empty, none twice.
     budgets : dict, optional
         Steps per task and method replacing :data:`BUDGETS` where given (e.g. short runs for a test).
 
