@@ -275,20 +275,26 @@ def test_reproduce_all_excludes_icl(monkeypatch, tmp_path):
 
 
 # --------------------------------------------------------------------------------------------- ICRL benchmark tasks
-@pytest.mark.parametrize("name, task", [("icrl_halfcheetah", "halfcheetah"), ("icrl_ant", "ant"),
-                                        ("icrl_walker", "walker")])
-def test_icrl_envs_truth_coordinate_and_hidden_cost(name, task):
+@pytest.mark.parametrize("name, task, wall, side", [
+    ("icrl_halfcheetah", "halfcheetah", -3.0, "behind"), ("icrl_ant", "ant", -3.0, "behind"),
+    ("icrl_walker", "walker", -3.0, "behind"), ("icrl_pendulum", "pendulum", -0.015, "behind"),
+    ("icrl_swimmer", "swimmer", 0.5, "infront")])
+def test_icrl_envs_truth_coordinate_and_hidden_cost(name, task, wall, side):
     pytest.importorskip("mujoco")
     from pbicrl.baselines.icl import icl_env
     from pbicrl.experiments.icrl_benchmark import make_task_env
 
     spec = icl_env(name)
-    assert spec.side == "behind" and spec.true_location == -3.0
-    # the benchmark's strict indicator on the post-step x: x < -3 violates, x = -3 does not
-    assert spec.true_indicator(np.array([-3.5, -3.0001, -3.0, -2.9, 0.0, 8.0])).tolist() == [1, 1, 0, 0, 0, 0]
-    assert spec.grid[0, 0] == -6.0 and spec.grid[-1, 0] == 0.0 and spec.true_indicator(spec.grid).mean() == pytest.approx(0.5, abs=0.01)
+    assert spec.side == side and spec.true_location == wall
+    # the benchmark's strict indicator on the post-step x: beyond the wall violates, the wall itself does not
+    probe = np.array([1.5, 1.0001, 1.0, 0.9667, 0.0, -8 / 3]) * wall
+    assert spec.true_indicator(probe).tolist() == [1, 1, 0, 0, 0, 0]
+    # the CMSE grid runs from the start (0) to twice the wall, the wall in the middle
+    assert sorted((spec.grid[0, 0], spec.grid[-1, 0])) == sorted((2 * wall, 0.0))
+    assert spec.true_indicator(spec.grid).mean() == pytest.approx(0.5, abs=0.01)
+    assert spec.location_grid[0] == -5 * abs(wall) and spec.location_grid[-1] == 5 * abs(wall)
     # a hand-set state: the root moved behind the wall; the coordinate is the post-step obs[0], the cost is hidden
-    for x0, violates in ((-5.0, 1.0), (2.0, 0.0)):
+    for x0, violates in ((5 / 3 * wall, 1.0), (-2 / 3 * wall, 0.0)):
         env, ref = spec.make(), make_task_env(task)
         try:
             for e in (env, ref):
@@ -304,11 +310,11 @@ def test_icrl_envs_truth_coordinate_and_hidden_cost(name, task):
             env.close()
             ref.close()
         c = spec.coord(obs, info)
-        assert c.shape == (1,) and c[0] == obs[0] and abs(c[0] - x0) < 0.1
+        assert c.shape == (1,) and c[0] == obs[0] and abs(c[0] - x0) < abs(wall) / 30
         assert spec.true_indicator(c)[0] == violates == info_ref["cost"]
         assert "cost" not in info and r == r_ref  # the learner gets the nominal reward only, no true cost
     # the budgets are the robot's, the expert the good group of the shipped dataset (which never crosses)
-    robot = "ant" if task == "walker" else task  # the walker has no ICL budgets of its own: Ant's
+    robot = task if task in ("halfcheetah", "ant") else "ant"  # the others have no ICL budgets of their own: Ant's
     assert icl_preset("default", name).to_dict() == icl_preset("default", robot).to_dict()
     expert = expert_coordinates(name, group=1, n=None)
     assert len(expert) == 100 and all(t.shape[1] == 1 for t in expert)

@@ -455,7 +455,7 @@ def test_report_resolves_a_boundary_on_its_walls_scale(tmp_path, task, bound, te
                config={"inferred_cost": {"mode": "conservative", "boundary": {"wall": [bound]}}})
     build_report(runs, tmp_path / "out", tasks=[task], figures=False)
     md = (tmp_path / "out" / "report.md").read_text()
-    assert f"| {task} | {text} | +0.00 (met) | 1.00 (met) | - (no ICL run on this task) |" in md, md
+    assert f"| {task} | {text} | +0.00 (met) | 1.00 (met) | - (no finished ICL seed) |" in md, md
 
 
 def test_a_finished_run_being_extended_counts_as_in_progress(tmp_path):

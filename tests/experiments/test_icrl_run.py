@@ -28,13 +28,13 @@ DOCS = Path(__file__).resolve().parents[2] / "docs" / "benchmarks" / "icrl"
 
 def test_plan_is_seed_major_at_the_documented_budgets():
     jobs, skipped = plan_jobs(["pendulum", "ant"], seeds=2)
-    assert [j.name for j in jobs[:7]] == [
+    assert [j.name for j in jobs[:8]] == [
         "pendulum:ppo:0:3000000", "pendulum:ppo_lag_true:0:2000000", "pendulum:ppo_lag_inferred:0:2000000",
+        "pendulum:icl:0:2000000",
         "ant:ppo:0:3000000", "ant:ppo_lag_true:0:3000000", "ant:ppo_lag_inferred:0:3000000", "ant:icl:0:2500000"]
-    assert len(jobs) == 14 and {j.seed for j in jobs[7:]} == {1}
-    assert skipped == ["pendulum/icl: no ICL environment for this task (ICL runs on halfcheetah, ant, walker)"]
+    assert len(jobs) == 16 and {j.seed for j in jobs[8:]} == {1} and skipped == []
     all_jobs, _ = plan_jobs(seeds=5)
-    assert len(all_jobs) == 5 * (4 + 4 + 3 + 4 + 3)
+    assert len(all_jobs) == 5 * 5 * 4
     assert sum(j.steps for j in all_jobs) == 5 * sum(sum(b.values()) for b in BUDGETS.values())
     assert [j.name for j in plan_jobs(["pendulum"], 1, ["ppo"], budgets=TINY)[0]] == ["pendulum:ppo:0:128"]
 
@@ -48,11 +48,22 @@ def test_plan_is_seed_major_at_the_documented_budgets():
     ({"tasks": ["ant", "pbicrl/BlockedAnt-v0"]}, r"tasks: listed twice: \['ant'\]"),
     ({"tasks": []}, "tasks: none given"),  # not "all five": --tasks "," must not start every run
     ({"methods": []}, "methods: none given"),
-    ({"tasks": ["pendulum"], "methods": ["icl"]}, "nothing to run: pendulum/icl: no ICL environment"),
 ])
 def test_plan_refuses_bad_input(kwargs, match):
     with pytest.raises(ValueError, match=match):
         plan_jobs(**kwargs)
+
+
+def test_plan_skips_icl_on_a_task_without_icl_environment(monkeypatch):
+    from pbicrl.experiments import icrl_benchmark
+
+    monkeypatch.delitem(icrl_benchmark.ICL_TASKS, "pendulum")
+    jobs, skipped = plan_jobs(["pendulum", "swimmer"], seeds=1, methods=["icl"])
+    assert [j.name for j in jobs] == ["swimmer:icl:0:2000000"]
+    assert skipped == ["pendulum/icl: no ICL environment for this task "
+                       "(ICL runs on halfcheetah, ant, walker, swimmer)"]
+    with pytest.raises(ValueError, match="nothing to run: pendulum/icl: no ICL environment"):
+        plan_jobs(["pendulum"], seeds=1, methods=["icl"])
 
 
 def test_job_is_validated():
@@ -165,8 +176,8 @@ def test_cli_run_dry_run_lists_the_plan(capsys):
 
     assert main(["benchmark", "icrl", "run", "--out", "unused", "--tasks", "swimmer", "--seeds", "2", "--dry-run"]) == 0
     out = capsys.readouterr().out
-    assert "swimmer:ppo_lag_inferred:1:2000000" in out and "left out: swimmer/icl" in out
-    assert "6 runs, 14.0 M environment steps in all" in out
+    assert "swimmer:ppo_lag_inferred:1:2000000" in out and "swimmer:icl:1:2000000" in out
+    assert "8 runs, 18.0 M environment steps in all" in out and "left out" not in out
     assert not Path("unused").exists()
     assert main(["benchmark", "icrl", "run", "--out", "x", "--methods", "sac", "--dry-run"]) == 2
     assert "methods: unknown" in capsys.readouterr().err

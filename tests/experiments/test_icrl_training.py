@@ -310,14 +310,21 @@ def test_icl_method_resumes_and_its_run_is_reported(tmp_path):
     assert row["seeds_done"] == 1 and row["violation_rate"][0] == ev[0]["violation_rate"]
     assert row["feasible_reward"][0] == pytest.approx(ev[0]["episodes"][0]["reward_nc"])
     missing = {(m["task"], m["method"]): m["why"] for m in res["missing"]}
-    assert ("halfcheetah", "icl") not in missing and missing["pendulum", "icl"].startswith("not run")
+    assert ("halfcheetah", "icl") not in missing and missing["pendulum", "icl"] == "no run directory"
     md = (tmp_path / "report" / "report.md").read_text()
     assert "| halfcheetah | ICL baseline | 1 of 5 | 3,072 |" in md and "ICL's learned wall" in md
 
 
-def test_icl_method_refuses_tasks_without_an_icl_environment(capsys, tmp_path):
+def test_icl_method_refuses_tasks_without_an_icl_environment(capsys, tmp_path, monkeypatch):
+    from pbicrl.experiments import icrl_benchmark
+    from pbicrl.experiments.icrl_benchmark import icl_config
+
+    # every task has one; the pendulum and the swimmer use Ant's 6 rounds, scaled to 2 M steps
+    cfg = icl_config("pendulum", 2_000_000)
+    assert (cfg.rounds, cfg.total_steps) == (6, 2_000_000) and icl_config("swimmer", 2_000_000).to_dict() == cfg.to_dict()
+    monkeypatch.delitem(icrl_benchmark.ICL_TASKS, "pendulum")
     assert main(["--out", str(tmp_path), "--run", "pendulum:icl:0:100000"]) == 2
-    assert "method icl runs on ['ant', 'halfcheetah', 'walker'] only" in capsys.readouterr().err
+    assert "method icl runs on ['ant', 'halfcheetah', 'swimmer', 'walker'] only" in capsys.readouterr().err
     assert main(["--out", str(tmp_path), "--run", "halfcheetah:icl:0:100"]) == 2
     assert "too small for ICL's 8 rounds" in capsys.readouterr().err
     with pytest.raises(ValueError, match="icl_config"):

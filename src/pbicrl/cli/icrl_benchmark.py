@@ -46,8 +46,8 @@ def _train_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="root directory of the runs")
     p.add_argument("--run", action="append", required=True, metavar="TASK:METHOD:SEED:STEPS",
                    help="a run to train (repeatable; trained in order), e.g. halfcheetah:ppo_lag_true:0:3000000; "
-                        "METHOD: ppo, ppo_lag_true, ppo_lag_inferred, icl (halfcheetah, ant and walker; STEPS = ICL's "
-                        "total PPO steps, its default preset: 4500000, 2500000 and 2500000)")
+                        "METHOD: ppo, ppo_lag_true, ppo_lag_inferred, icl (STEPS = ICL's total PPO steps; the "
+                        "benchmark's: halfcheetah 4500000, ant and walker 2500000, pendulum and swimmer 2000000)")
     p.add_argument("--checkpoint-every", type=int, default=2, help="updates between checkpoints (default 2)")
     p.add_argument("--eval-every", type=int, default=10, help="updates between evaluations (default 10)")
     p.add_argument("--inferred-run", type=Path, default=None,

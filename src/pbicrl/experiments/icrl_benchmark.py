@@ -22,9 +22,8 @@ the last checkpoint. Command line: ``python -m pbicrl.cli.icrl_benchmark --out D
     another posterior is refused.
 ``icl``
     The project's ICL baseline (:mod:`pbicrl.baselines.icl`, :func:`~pbicrl.baselines.icl.run_icl`) on the same
-    ranked demonstrations as ``ppo_lag_inferred`` (the shipped ``icrl_halfcheetah`` / ``icrl_ant``), of which ICL
-    uses the good group (the expert's 100 episodes, their post-step x): Blocked Half-Cheetah and Blocked Ant only
-    (:data:`ICL_TASKS`). ICL learns its constraint on x and trains its own PPO-Lagrangian with it
+    ranked demonstrations as ``ppo_lag_inferred`` (the shipped ``icrl_<task>``), of which ICL uses the good group
+    (the expert's 100 episodes, their post-step x), on all five tasks (:data:`ICL_TASKS`). ICL learns its constraint on x and trains its own PPO-Lagrangian with it
     (:func:`icl_config`: ICL's ``default`` preset of the robot, its rounds and PPO settings, the round sizes
     scaled to ``total_steps``); the environment it trains in is the benchmark's with ``info["cost"]`` removed.
     The run directory has the layout below (``config.json``, ``curve.jsonl``, ``eval.jsonl``, ``progress.json``,
@@ -116,7 +115,8 @@ __all__ = [
 
 CHECKPOINT = "checkpoint.pt"
 METHODS: tuple[str, ...] = ("ppo", "ppo_lag_true", "ppo_lag_inferred", "icl")
-ICL_TASKS: dict[str, str] = {"halfcheetah": "icrl_halfcheetah", "ant": "icrl_ant", "walker": "icrl_walker"}
+ICL_TASKS: dict[str, str] = {"halfcheetah": "icrl_halfcheetah", "ant": "icrl_ant", "walker": "icrl_walker",
+                             "pendulum": "icrl_pendulum", "swimmer": "icrl_swimmer"}
 """Tasks the ``icl`` method runs on -> their ICL environment (:func:`pbicrl.baselines.icl.icl_env`), which is also
 the name of the shipped dataset whose good group ICL learns from."""
 _ROLLOUT = 5 * 2048  # one update of the benchmark's PPO (expert_config): the unit of eval_every for icl too

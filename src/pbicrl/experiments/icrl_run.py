@@ -32,12 +32,13 @@ __all__ = ["BUDGETS", "Job", "infer_wall", "plan_jobs", "run_benchmark", "wall_c
 BUDGETS: dict[str, dict[str, int]] = {
     "halfcheetah": {"ppo": 1_000_000, "ppo_lag_true": 3_000_000, "ppo_lag_inferred": 3_000_000, "icl": 4_500_000},
     "ant": {"ppo": 3_000_000, "ppo_lag_true": 3_000_000, "ppo_lag_inferred": 3_000_000, "icl": 2_500_000},
-    "pendulum": {"ppo": 3_000_000, "ppo_lag_true": 2_000_000, "ppo_lag_inferred": 2_000_000},
+    "pendulum": {"ppo": 3_000_000, "ppo_lag_true": 2_000_000, "ppo_lag_inferred": 2_000_000, "icl": 2_000_000},
     "walker": {"ppo": 3_000_000, "ppo_lag_true": 3_000_000, "ppo_lag_inferred": 3_000_000, "icl": 2_500_000},
-    "swimmer": {"ppo": 3_000_000, "ppo_lag_true": 2_000_000, "ppo_lag_inferred": 2_000_000},
+    "swimmer": {"ppo": 3_000_000, "ppo_lag_true": 2_000_000, "ppo_lag_inferred": 2_000_000, "icl": 2_000_000},
 }
 """Environment steps per task and method: the budgets of ``docs/benchmarks/icrl/report.md`` (ICL: the total PPO
-steps of its default preset). ICL has no pendulum or swimmer environment (``ICL_TASKS``)."""
+steps of its default preset; the pendulum and the swimmer, which have no preset of their own, Ant's 6 rounds scaled to
+their PPO-Lagrangian budget of 2 M steps)."""
 
 EXECUTORS: tuple[str, ...] = ("local", "serial", "ray")
 

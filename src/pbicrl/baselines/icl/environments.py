@@ -2,9 +2,10 @@
 constraint for evaluation) and the expert demonstrations it learns from.
 
 Two families: the project's wall tasks (``"halfcheetah"``, ``"ant"``: a wall in front at x = 8 / 10, and
-``"point_mass"``), and the ICRL benchmark's Blocked Half-Cheetah, Ant and Walker (``"icrl_halfcheetah"``,
-``"icrl_ant"``, ``"icrl_walker"``: :mod:`pbicrl.envs.icrl_benchmark`, the wall *behind* the start, a step violates
-iff its post-step x < -3), whose expert coordinates are the good group of the shipped datasets of the same names.
+``"point_mass"``), and the five tasks of the ICRL benchmark (:mod:`pbicrl.envs.icrl_benchmark`;
+``"icrl_halfcheetah"``, ``"icrl_ant"``, ``"icrl_walker"``: the wall *behind* the start, a step violates iff its
+post-step x < -3; ``"icrl_pendulum"``: the cart's x < -0.015; ``"icrl_swimmer"``: a wall in front, x > 0.5), whose
+expert coordinates are the good group of the shipped datasets of the same names.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from pbicrl.baselines.icl.presets import ENVS
 __all__ = ["ICLEnv", "ICRLFactory", "ICRL_ICL_ENVS", "expert_coordinates", "hide_true_cost", "icl_env", "icrl_coord",
            "point_mass_expert_demos"]
 
-ICRL_ICL_ENVS: dict[str, str] = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant", "icrl_walker": "walker"}
+ICRL_ICL_ENVS: dict[str, str] = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant", "icrl_walker": "walker",
+                                  "icrl_pendulum": "pendulum", "icrl_swimmer": "swimmer"}
 """ICL environment name -> ICRL benchmark task (:data:`pbicrl.envs.icrl_benchmark.ICRL_TASKS`); the shipped
 dataset with the task's ranked demonstrations has the same name as the ICL environment."""
 
@@ -159,17 +161,18 @@ def _obs_coord(obs: Any, info: dict) -> NDArray[np.float64]:
 
 
 def icl_env(name: str) -> ICLEnv:
-    """The :class:`ICLEnv` of ``"halfcheetah"``, ``"ant"`` (walls at x = 8 and 10), ``"point_mass"``, or of the
-    ICRL benchmark's ``"icrl_halfcheetah"``, ``"icrl_ant"``, ``"icrl_walker"`` (walls behind the start: x < -3
-    violates).
+    """The :class:`ICLEnv` of ``"halfcheetah"``, ``"ant"`` (walls at x = 8 and 10), ``"point_mass"``, or of one of
+    the ICRL benchmark's tasks (:data:`ICRL_ICL_ENVS`: ``"icrl_halfcheetah"``, ``"icrl_ant"``, ``"icrl_walker"``
+    with x < -3 violating, ``"icrl_pendulum"`` x < -0.015, ``"icrl_swimmer"`` x > 0.5).
 
     The CMSE grid spans ``[0, 2 * wall]`` on x (so that an all-0 or all-1 constraint scores 0.5), 401 points;
     the location is scanned up to ``5 * wall`` (from the lowest expert x, see :func:`run_icl`). For the point mass the grid is 43 x 43 over
     ``[-1, 20]^2`` and the truth is the union of the two discs. For the ICRL tasks: the environment is the
     benchmark's (:class:`ICRLFactory`: nominal reward, ``info["cost"]`` removed), the coordinate the post-step
-    ``obs[0]`` (:func:`icrl_coord`), the truth the benchmark's strict indicator x < -3, the CMSE grid
-    ``[2 * wall, 0] = [-6, 0]`` (401 points, the start at one end and the wall in the middle), and the location is
-    scanned downward from the lowest expert x over ``[5 * wall, -5 * wall] = [-15, 15]``.
+    ``obs[0]`` (:func:`icrl_coord`), the truth the benchmark's strict indicator (x < wall behind the start, x > wall
+    in front), the CMSE grid from 0 (the start) to ``2 * wall`` (401 points, the wall in the middle), and the
+    location is scanned over ``[-5 |wall|, 5 |wall|]`` (2,001 points) from the demonstrations' nearest approach:
+    downward from their lowest x for a wall behind (x < -3: [-15, 15]), upward from their lowest x for one in front.
     """
     if name in ("halfcheetah", "ant"):
         from pbicrl.envs.mujoco_wall import WALL_SPECS
@@ -182,11 +185,13 @@ def icl_env(name: str) -> ICLEnv:
         from pbicrl.envs.icrl_benchmark import icrl_task
 
         task = icrl_task(ICRL_ICL_ENVS[name])
-        if task.side != "behind" or task.wall >= 0:
-            raise ValueError(f"env: {name!r} expects a wall behind the start, got {task.side} {task.wall}")
         w = float(task.wall)
+        if (task.side == "behind") != (w < 0):  # the start (x = 0) must be on the allowed side
+            raise ValueError(f"env: {name!r} expects its start on the allowed side, got {task.side} {w}")
+        lo, hi = sorted((2 * w, 0.0))
         return ICLEnv(name, ICRLFactory(task.name), icrl_coord, _ICRLTruth(task.name),
-                      np.linspace(2 * w, 0.0, 401)[:, None], np.linspace(5 * w, -5 * w, 2001), w, side="behind")
+                      np.linspace(lo, hi, 401)[:, None], np.linspace(-5 * abs(w), 5 * abs(w), 2001), w,
+                      side=task.side)
     if name == "point_mass":
         from pbicrl.envs.point_mass import HIGH, LOW, POINT_MASS_TASK
 

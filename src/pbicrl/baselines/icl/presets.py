@@ -11,9 +11,12 @@ from pbicrl.baselines.ppo_lagrangian import PPOLagConfig
 __all__ = ["PRESETS", "ENVS", "ICLConfig", "icl_preset"]
 
 PRESETS = ("smoke", "default", "paper")
-ENVS = ("halfcheetah", "ant", "point_mass", "icrl_halfcheetah", "icrl_ant", "icrl_walker")
-# The ICRL tasks use their robot's budgets; the walker, which has none of its own, Ant's (500-step episodes too)
-_PRESET_OF = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant", "icrl_walker": "ant"}
+ENVS = ("halfcheetah", "ant", "point_mass", "icrl_halfcheetah", "icrl_ant", "icrl_walker", "icrl_pendulum",
+        "icrl_swimmer")
+# The ICRL tasks use their robot's budgets; the walker, pendulum and swimmer, which have none of their own, Ant's
+# (6 rounds; the benchmark driver scales the rounds to a task's budget, see icrl_config)
+_PRESET_OF = {"icrl_halfcheetah": "halfcheetah", "icrl_ant": "ant", "icrl_walker": "ant", "icrl_pendulum": "ant",
+              "icrl_swimmer": "ant"}
 
 
 @dataclass
@@ -152,7 +155,7 @@ def icl_preset(name: str, env: str = "halfcheetah") -> ICLConfig:
         print (it reports ~20,000 s per ICL seed).
 
     The ICRL benchmark's ``icrl_halfcheetah`` and ``icrl_ant`` get the budgets of ``halfcheetah`` and ``ant``,
-    ``icrl_walker`` (no budgets of its own) those of ``ant``.
+    ``icrl_walker``, ``icrl_pendulum`` and ``icrl_swimmer`` (no budgets of their own) those of ``ant``.
     """
     if name not in PRESETS:
         raise ValueError(f"budget: unknown preset {name!r}; choose one of {PRESETS}")

@@ -143,9 +143,10 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
 
     ppo = PPOLagrangian(spec.make, spec.coord, cost_np, cfg.ppo, seed=seed)
     eval_env = (spec.make_eval or spec.make)()
-    # accrual bins: the expert's range widened on both sides (policies may roam far beyond it)
+    # accrual bins: the expert's range widened on both sides (policies may roam far beyond it); the floor keeps
+    # a degenerate range usable without coarsening small-scale tasks (the pendulum's cart moves ~0.1)
     lo, hi = allc.min(0), allc.max(0)
-    span = np.maximum(hi - lo, 1.0)
+    span = np.maximum(hi - lo, 1e-3)
     edges = [np.linspace(lo[d] - 2 * span[d], hi[d] + 2 * span[d], cfg.accrual_bins + 1) for d in range(k)]
     exp_acc = accrual(expert, cfg.gamma, edges)
     exp_mat = discount_matrix(expert, cfg.gamma)
