@@ -456,6 +456,15 @@ def test_report_resolves_a_boundary_on_its_walls_scale(tmp_path, task, bound, te
     build_report(runs, tmp_path / "out", tasks=[task], figures=False)
     md = (tmp_path / "out" / "report.md").read_text()
     assert f"| {task} | {text} | +0.00 (met) | 1.00 (met) | - (no finished ICL seed) |" in md, md
+    # ICL's learned wall on the same scale
+    icl = runs / task / "icl" / "seed0"
+    _fake_seed(icl, [[(10.0, 10.0, 0)]])
+    (icl / "done.json").write_text(json.dumps({"steps": 1000, "wall_s": 60.0, "icl_location": bound}))
+    build_report(runs, tmp_path / "out", tasks=[task], figures=False)
+    md = (tmp_path / "out" / "report.md").read_text()
+    rel, true = ("<", "< -0.015") if task == "pendulum" else (">=", "> 0.5")
+    assert f"| {task} | x {rel} {text.split(' vs ')[0]} | 1 of 1 | x {true} |" in md, md
+    assert f"| {task} | {text} | +0.00 (met) | 1.00 (met) | 0.00 vs 0.00, 10 vs 10 (met) |" in md, md
 
 
 def test_a_finished_run_being_extended_counts_as_in_progress(tmp_path):

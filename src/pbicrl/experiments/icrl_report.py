@@ -351,14 +351,14 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
            and res["tasks"][t]["icl"].get("icl_location_seeds")]
     if icl:
         lines += ["", "ICL's learned wall against the true one (where its constraint c first reaches 0.5, scanning "
-                  "from the good demonstrations' nearest approach to the wall; mean ± sd over the seeds where it "
-                  "does):", "", "| task | ICL wall | seeds with a wall | true wall |", "|---|---|---|---|"]
+                  "from the good demonstrations' nearest approach to a wall behind them, upward from their lowest x "
+                  "to one in front; mean ± sd over the seeds where it does):", "", "| task | ICL wall | seeds with a wall | true wall |", "|---|---|---|---|"]
         for t, a in icl:
             spec = icrl_task(t)
             n_found, n_all = a["icl_location_seeds"]
             loc = a.get("icl_location")
             rel = "<" if spec.side == "behind" else ">="
-            wall = "none" if loc is None else f"x {rel} {_fmt(loc, 3, n_found)}"
+            wall = "none" if loc is None else f"x {rel} {_fmt(loc, _decimals(spec.wall), n_found)}"
             lines.append(f"| {t} | {wall} | {n_found} of {n_all} | x {'<' if spec.side == 'behind' else '>'} "
                          f"{spec.wall:g} |")
     if drawn:
