@@ -728,7 +728,7 @@ def _train_icl(task: str, seed: int, out: Path, total_steps: int, *, eval_every:
             "cmse_location": summary.get("cmse_location"), "cmse_grid": summary.get("cmse_grid"),
             "rounds": cfg.rounds})
         say(f"{tag} done: {agent.num_steps} steps in {wall:.0f} s; ICL's wall at {summary.get('location')} "
-            f"(true x < {spec.wall:g})")
+            f"(true x {'<' if spec.side == 'behind' else '>'} {spec.wall:g})")
         return run
     finally:
         lock.unlink(missing_ok=True)
