@@ -337,3 +337,30 @@ def test_location_of_a_wall_behind_is_scanned_down_from_the_demonstrations():
     assert _location(net, spec, xmin=-2.77) == pytest.approx(-3.21, abs=0.02)
     assert _location(net, spec, xmin=-4.0) == -4.0  # already costed where the demonstrations are
     assert _location(ConstraintNet(1, (8,), [0.0], [1.0]), spec, xmin=-2.77) is None  # nowhere
+
+
+def test_location_of_a_wall_in_front_is_scanned_up_from_the_nearest_approach():
+    """The swimmer's demonstrations swim both ways (x from -0.84 to 0.4987): a net that also costs the far left,
+    where they rarely go, must not put the wall in front at their lowest x."""
+    from dataclasses import replace
+
+    from pbicrl.baselines.icl import icl_env
+    from pbicrl.baselines.icl.run import _location
+
+    pytest.importorskip("mujoco")
+    spec = icl_env("icrl_swimmer")
+    assert spec.side == "infront" and spec.scan_from == "nearest"
+    net = ConstraintNet(1, (2,), [0.0], [1.0])
+    with torch.no_grad():  # c(x) >= 0.5 where x <= -0.7 or x >= 0.6: 100 relu(-x - 0.69) + 100 relu(x - 0.59) - 1
+        net.mlp[0].weight.copy_(torch.tensor([[-1.0], [1.0]]))
+        net.mlp[0].bias.copy_(torch.tensor([-0.69, -0.59]))
+        net.mlp[2].weight.fill_(100.0)
+        net.mlp[2].bias.fill_(-1.0)
+    assert net.numpy(np.array([-0.8, 0.0, 0.7])).round(2).tolist() == [1.0, 0.27, 1.0]
+    assert _location(net, spec, xmin=-0.84, xmax=0.4987) == pytest.approx(0.6, abs=0.01)
+    lowest = replace(spec, scan_from="lowest")  # the project's in-front walls: from the demonstrations' start
+    assert _location(net, lowest, xmin=-0.84, xmax=0.4987) == -0.84
+    with pytest.raises(ValueError, match="xmax"):
+        _location(net, spec, xmin=-0.84)
+    with pytest.raises(ValueError, match="scan_from"):
+        replace(spec, scan_from="far")

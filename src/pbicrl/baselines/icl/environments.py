@@ -49,8 +49,12 @@ class ICLEnv:
     true_location : float or None
         The true wall position.
     side : {"infront", "behind"}
-        Where the wall is: ``"infront"`` (a halfspace ``x >= theta``: the location is scanned upward from the
-        lowest expert coordinate) or ``"behind"`` (``x < theta``: scanned downward from it).
+        Where the wall is: ``"infront"`` (a halfspace ``x >= theta``: the location is scanned upward, see
+        ``scan_from``) or ``"behind"`` (``x < theta``: scanned downward from the lowest expert coordinate).
+    scan_from : {"lowest", "nearest"}
+        Where the upward scan for a wall in front starts: the lowest expert coordinate (the project's wall tasks,
+        whose demonstrations start there) or the highest, their nearest approach to the wall (the ICRL swimmer,
+        whose demonstrations swim both ways). Walls behind are always scanned from their nearest approach.
     make_eval : callable or None
         Factory of the environment for ICL's own rollouts (each round's policy sample, the final evaluation);
         None: ``make``. Lets a caller record the training environments' episodes without ICL's rollouts.
@@ -65,10 +69,13 @@ class ICLEnv:
     true_location: float | None
     side: str = "infront"
     make_eval: Callable[[], Any] | None = None
+    scan_from: str = "lowest"
 
     def __post_init__(self) -> None:
         if self.side not in ("infront", "behind"):
             raise ValueError(f"ICLEnv.side: must be 'infront' or 'behind', got {self.side!r}")
+        if self.scan_from not in ("lowest", "nearest"):
+            raise ValueError(f"ICLEnv.scan_from: must be 'lowest' or 'nearest', got {self.scan_from!r}")
 
 
 class _WallFactory:
@@ -171,8 +178,9 @@ def icl_env(name: str) -> ICLEnv:
     benchmark's (:class:`ICRLFactory`: nominal reward, ``info["cost"]`` removed), the coordinate the post-step
     ``obs[0]`` (:func:`icrl_coord`), the truth the benchmark's strict indicator (x < wall behind the start, x > wall
     in front), the CMSE grid from 0 (the start) to ``2 * wall`` (401 points, the wall in the middle), and the
-    location is scanned over ``[-5 |wall|, 5 |wall|]`` (2,001 points) from the demonstrations' nearest approach:
-    downward from their lowest x for a wall behind (x < -3: [-15, 15]), upward from their lowest x for one in front.
+    location is scanned over ``[-5 |wall|, 5 |wall|]`` (2,001 points) from the demonstrations' nearest approach
+    (``scan_from="nearest"``): downward from their lowest x for a wall behind (x < -3: [-15, 15]), upward from their
+    highest x for one in front.
     """
     if name in ("halfcheetah", "ant"):
         from pbicrl.envs.mujoco_wall import WALL_SPECS
@@ -191,7 +199,7 @@ def icl_env(name: str) -> ICLEnv:
         lo, hi = sorted((2 * w, 0.0))
         return ICLEnv(name, ICRLFactory(task.name), icrl_coord, _ICRLTruth(task.name),
                       np.linspace(lo, hi, 401)[:, None], np.linspace(-5 * abs(w), 5 * abs(w), 2001), w,
-                      side=task.side)
+                      side=task.side, scan_from="nearest")
     if name == "point_mass":
         from pbicrl.envs.point_mass import HIGH, LOW, POINT_MASS_TASK
 

@@ -55,13 +55,19 @@ def _rollout_coords(ppo: PPOLagrangian, env: Any, coord: Callable, n: int, seed:
     return trajs, rets
 
 
-def _location(net: ConstraintNet, spec: ICLEnv, xmin: float) -> float | None:
-    """Constraint location, scanning from the lowest expert coordinate: upward for a wall in front (from the
-    demonstrations' start: the network's extrapolation below any data says nothing about a halfspace
-    ``x >= theta``), downward for a wall behind (``spec.side == "behind"``: from the demonstrations' nearest
-    approach to it, beyond which they say nothing)."""
+def _location(net: ConstraintNet, spec: ICLEnv, xmin: float, xmax: float | None = None) -> float | None:
+    """Constraint location: downward for a wall behind (``spec.side == "behind"``) from the lowest expert
+    coordinate ``xmin`` (the demonstrations' nearest approach to it, beyond which they say nothing); upward for a
+    wall in front from ``xmin`` (``spec.scan_from == "lowest"``: the demonstrations' start; the network's
+    extrapolation below any data says nothing about a halfspace ``x >= theta``) or from the highest expert
+    coordinate ``xmax`` (``"nearest"``: their nearest approach, for demonstrations that roam on both sides of
+    the start)."""
     if spec.location_grid is None:
         return None
+    if spec.side != "behind" and spec.scan_from == "nearest":
+        if xmax is None:
+            raise ValueError("xmax: a wall in front scanned from the nearest approach needs the highest expert x")
+        xmin = xmax
     if spec.side == "behind":
         g = np.concatenate([[xmin], spec.location_grid[spec.location_grid < xmin][::-1]])
         if g.size < 2:
@@ -133,7 +139,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
     h = hashlib.sha256(np.asarray([len(t) for t in expert], dtype=np.int64).tobytes())
     h.update(np.ascontiguousarray(allc).tobytes())
     fingerprint = h.hexdigest()
-    xmin = float(allc[:, 0].min())
+    xmin, xmax = float(allc[:, 0].min()), float(allc[:, 0].max())
     center, scale = allc.mean(0), allc.std(0) + 1e-3
     net = ConstraintNet(k, cfg.constraint_hidden, center, scale, cfg.init_bias)
     copt = torch.optim.Adam(net.parameters(), lr=cfg.constraint_lr)
@@ -241,7 +247,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
                 copt.step()
             with torch.no_grad():
                 loss, info = constraint_loss(net, mats, w, exp_mat, cfg.beta, cfg.hinge_weight)
-            loc = _location(net, spec, xmin)
+            loc = _location(net, spec, xmin, xmax)
             grid_err = cmse_grid(spec.true_indicator(spec.grid), net.numpy(spec.grid))
             ret_mean = float(np.mean(state["snapshots"][-1]["returns"]))
             maxc = float(np.mean([t[:, 0].max() for t in snaps[-1]]))
@@ -262,7 +268,7 @@ def run_icl(env: str | ICLEnv, expert: Sequence[NDArray], config: ICLConfig | st
     # final evaluation of the constraint and of the last policy
     trajs, rets = _rollout_coords(ppo, eval_env, spec.coord, cfg.eval_episodes, seed=seed * 1_000_003 + 999_999,
                                   deterministic=True)
-    loc = _location(net, spec, xmin)
+    loc = _location(net, spec, xmin, xmax)
     vals = net.numpy(spec.grid)
     summary: dict[str, Any] = {
         "env": spec.name, "seed": seed, "n_expert": len(expert), "location": loc, "true_location": spec.true_location,
