@@ -351,8 +351,8 @@ def _markdown(res: dict[str, Any], names: Sequence[str], methods: Sequence[str],
            and res["tasks"][t]["icl"].get("icl_location_seeds")]
     if icl:
         lines += ["", "ICL's learned wall against the true one (where its constraint c first reaches 0.5, scanning "
-                  "from the good demonstrations' nearest approach to a wall behind them, upward from their lowest x "
-                  "to one in front; mean ± sd over the seeds where it does):", "", "| task | ICL wall | seeds with a wall | true wall |", "|---|---|---|---|"]
+                  "from the good demonstrations' nearest approach to the wall; mean ± sd over the seeds where it "
+                  "does):", "", "| task | ICL wall | seeds with a wall | true wall |", "|---|---|---|---|"]
         for t, a in icl:
             spec = icrl_task(t)
             n_found, n_all = a["icl_location_seeds"]
