@@ -23,7 +23,8 @@ the last checkpoint. Command line: ``python -m pbicrl.cli.icrl_benchmark --out D
 ``icl``
     The project's ICL baseline (:mod:`pbicrl.baselines.icl`, :func:`~pbicrl.baselines.icl.run_icl`) on the same
     ranked demonstrations as ``ppo_lag_inferred`` (the shipped ``icrl_<task>``), of which ICL uses the good group
-    (the expert's 100 episodes, their post-step x), on all five tasks (:data:`ICL_TASKS`). ICL learns its constraint on x and trains its own PPO-Lagrangian with it
+    (the expert's 100 episodes, their post-step x), on all five tasks (:data:`ICL_TASKS`). ICL learns its
+    constraint on x and trains its own PPO-Lagrangian with it
     (:func:`icl_config`: ICL's ``default`` preset of the robot, its rounds and PPO settings, the round sizes
     scaled to ``total_steps``); the environment it trains in is the benchmark's with ``info["cost"]`` removed.
     The run directory has the layout below (``config.json``, ``curve.jsonl``, ``eval.jsonl``, ``progress.json``,
