@@ -315,6 +315,27 @@ def test_icl_method_resumes_and_its_run_is_reported(tmp_path):
     assert "| halfcheetah | ICL baseline | 1 of 5 | 3,072 |" in md and "ICL's learned wall" in md
 
 
+@pytest.mark.parametrize("task, wall, side", [("pendulum", -0.015, "behind"), ("swimmer", 0.5, "infront")])
+def test_icl_method_runs_on_the_pendulum_and_the_swimmer(tmp_path, task, wall, side):
+    """A smoke-sized ICL seed on the tasks that gained ICL environments last: the true cost is what the logs
+    record (x beyond the wall on the wall's side), and ICL's wall, where it finds one, is beyond the good
+    demonstrations' reach (scanned from their nearest approach)."""
+    small = {"ppo": {"n_envs": 2}, "policy_episodes": 1, "eval_episodes": 1}
+    run = train_policy(task, "icl", 0, tmp_path, 3072, icl_budget="smoke", config_overrides=small,
+                       eval_episodes=1, log=None)
+    done = json.loads((run / "done.json").read_text())
+    assert done["steps"] == 3072 and done["true_location"] == wall
+    assert json.loads((run / "config.json").read_text())["expert_data"] == f"icrl_{task}"
+    loc = done["icl_location"]
+    if loc is not None:  # the good demonstrations reach -0.01466 (pendulum) and 0.4987 (swimmer)
+        assert (loc <= -0.01466) if side == "behind" else (loc >= 0.4986)
+    curve = _lines(run / "curve.jsonl")
+    assert curve
+    for r in curve:
+        beyond = r["x_min"] < wall if side == "behind" else r["x_max"] > wall
+        assert r["constraint"] == int(r["cost_sum"] > 0) == int(beyond)
+
+
 def test_icl_method_refuses_tasks_without_an_icl_environment(capsys, tmp_path, monkeypatch):
     from pbicrl.experiments import icrl_benchmark
     from pbicrl.experiments.icrl_benchmark import icl_config
