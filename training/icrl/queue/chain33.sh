@@ -1,14 +1,8 @@
 #!/usr/bin/env bash
-# Session 21: Ant's 6 M-step rows to five seeds, the shortest continuation first (inferred seed 3 from 4.7 M, true
-# seed 4 from 3.8 M, inferred seed 4 from 3 M), then chain25's and chain24's remaining runs (Ant ICL seeds 3-4,
-# walker true cost seed 4); finished runs are skipped.
+# Session 21: Ant's inferred cost seed 3 to 6 M steps (from 4.7 M), then chain34 (the rest of Ant's 6 M rows, Ant
+# 10 M, the main table's remaining runs). Ran as a longer list until its first run; chain34 took over from there.
 . "$(dirname "$0")/_env.sh"
 . "$(dirname "$0")/_extend.sh"
 extend_copy ant ppo_lag_inferred 3 && \
     $RX ant:ppo_lag_inferred:3:6000000 --inferred-run $INFER/ant_wall >> $EXT/train.log 2>&1
-extend_copy ant ppo_lag_true 4 && $RX ant:ppo_lag_true:4:6000000 >> $EXT/train.log 2>&1
-extend_copy ant ppo_lag_inferred 4 && \
-    $RX ant:ppo_lag_inferred:4:6000000 --inferred-run $INFER/ant_wall >> $EXT/train.log 2>&1
-$R ant:icl:3:2500000 >> $OUT/train_icl_ant.log 2>&1
-$R ant:icl:4:2500000 >> $OUT/train_icl_ant.log 2>&1
-$R walker:ppo_lag_true:4:3000000 >> $OUT/train.log 2>&1
+exec bash "$(dirname "$0")/chain34.sh"
